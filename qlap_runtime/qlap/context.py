@@ -1,0 +1,73 @@
+"""Hill-climbing on contexts: isModelImprovement (Algorithm 1) and Update Context (Algorithm 3).
+
+Both work on :class:`~.dbn.ModelStats`, so they can be tested with hand-made numbers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+from .dbn import ModelStats
+from .params import Params
+
+
+def _brel_gain(new: float | None, old: float | None) -> float:
+    """brel(r') − brel(r) with ⊥ below every value (Appendix B.1)."""
+    if new is None:
+        return float("-inf")
+    if old is None:
+        return float("inf")
+    return new - old
+
+
+def is_model_improvement(r: ModelStats, r2: ModelStats, params: Params) -> bool:
+    """Algorithm 1: is r' (``r2``) a sufficient improvement over r? (§4.3.1)
+
+    The ``entropy_only`` ablation (§7.11) always uses the entropy branch.
+    """
+    delta = r2.n_context - r.n_context
+    theta = params.theta_pen
+    if params.ablations.entropy_only:
+        if r.n_context <= r2.n_context:
+            return r.entropy - r2.entropy > (1 + delta) * theta
+        return not is_model_improvement(r2, r, params)
+    if r.reliable:
+        if not r2.reliable:
+            return False
+        if r.n_context <= r2.n_context:
+            return r.entropy - r2.entropy > (1 + delta) * theta
+        return not is_model_improvement(r2, r, params)
+    if r.n_context <= r2.n_context:
+        return _brel_gain(r2.brel, r.brel) > (1 + delta) * theta
+    return not is_model_improvement(r2, r, params)
+
+
+def update_context(current: tuple[int, ...], candidates: Sequence[int],
+                   evaluate: Callable[[tuple[int, ...]], ModelStats],
+                   params: Params) -> tuple[int, ...] | None:
+    """Algorithm 3 (Appendix D.1): rebuild a context from ∅ by hill-climbing.
+
+    ``evaluate(context)`` gives the DBN's statistics under a context on the stored activations.
+    Returns the new context if it improves on ``current`` (isModelImprovement), else None.
+    At most ``params.max_context_vars`` variables are added (§4.2.1 footnote 1). Ties are broken
+    by the lower variable index, so the result is deterministic.
+    """
+    r = evaluate(tuple(current))
+    ctx: tuple[int, ...] = ()
+    r1 = evaluate(ctx)
+    while len(ctx) < params.max_context_vars:
+        options = [v for v in candidates if v not in ctx]
+        if not options:
+            break
+        scored = [(v, evaluate(tuple(sorted(ctx + (v,))))) for v in options]
+        if r1.reliable or params.ablations.entropy_only:
+            v, r2 = min(scored, key=lambda p: (p[1].entropy, p[0]))
+        else:
+            v, r2 = max(scored, key=lambda p: (-1.0 if p[1].brel is None else p[1].brel, -p[0]))
+        if not is_model_improvement(r1, r2, params):
+            break
+        ctx = tuple(sorted(ctx + (v,)))
+        r1 = r2
+    if tuple(sorted(current)) != ctx and is_model_improvement(r, r1, params):
+        return ctx
+    return None

@@ -1,0 +1,220 @@
+"""The pairwise search for contingencies and the learning of the window k (§4.1, Appendix C).
+
+:class:`PairStatistics` counts, for every antecedent event E1 and every consequent candidate E2,
+how often ``soon(t, E2)`` followed ``event(t, E1)``, and how often ``soon(t, E2)`` holds at a
+random step. Counts are updated only where events happen: when E2 occurs at t', every E1 that
+occurred in the window (t' − k, t'] and was not already credited for E2 gets one success,
+through one vectorised ``np.add.at``; an occurrence of E1 is counted as a trial once its window
+has closed, so Pr(soon | E1) is exact.
+
+:class:`WindowLearner` implements Appendix C: for motor → direction-of-change transitions it
+records the delay until the consequent occurs while the motor value still holds.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from .perception import EventIndex
+from .probability import prob_above_many
+
+
+class PairStatistics:
+    """Statistics for event(t, E1) ⇒ soon(t, E2) over all event pairs (§4.1.2)."""
+
+    def __init__(self, index: EventIndex, k: int) -> None:
+        self.k = int(k)
+        self.reset(index)
+
+    def reset(self, index: EventIndex) -> None:
+        """Start counting afresh for a new event index (after landmarks or k changed)."""
+        self.index = index
+        n, c = index.n_events, index.n_cons
+        self.occurrences = np.zeros(n, dtype=np.int64)      # resolved E1 occurrences
+        self.soon_given = np.zeros((n, c), dtype=np.int64)  # E1 occurrences followed soon by E2
+        self.soon_steps = np.zeros(c, dtype=np.int64)       # steps t with E2 in [t, t+k)
+        self.last_cons = np.full(c, -(10**12), dtype=np.int64)
+        self.window: deque[tuple[int, np.ndarray]] = deque()
+        self.steps = 0
+        self.first_step: int | None = None
+
+    def update(self, step: int, event_ids: np.ndarray) -> None:
+        """Account for the events of one step."""
+        if self.first_step is None:
+            self.first_step = step
+        k = self.k
+        self.window.append((step, event_ids))
+        cons = self.index.cons_of_event[event_ids] if len(event_ids) else event_ids
+        cons = cons[cons >= 0] if len(event_ids) else cons
+        if len(cons):
+            rows: list[np.ndarray] = []
+            cols: list[np.ndarray] = []
+            for c in cons:
+                lo = max(int(self.last_cons[c]) + 1, step - k + 1, self.first_step)
+                for t, ids in self.window:
+                    if t >= lo and len(ids):
+                        rows.append(ids)
+                        cols.append(np.full(len(ids), c))
+                self.soon_steps[c] += step - lo + 1
+                self.last_cons[c] = step
+            if rows:
+                np.add.at(self.soon_given, (np.concatenate(rows), np.concatenate(cols)), 1)
+        while self.window and self.window[0][0] <= step - k:
+            _, ids = self.window.popleft()
+            if len(ids):
+                np.add.at(self.occurrences, ids, 1)
+        self.steps += 1
+
+    def resolved_steps(self) -> int:
+        """Steps whose soon-window has closed."""
+        return max(0, self.steps - self.k + 1)
+
+    def contingencies(self, theta_pen: np.ndarray, min_points: int, prior: float,
+                      confidence: float) -> list[tuple[int, int, float, float]]:
+        """Pairs with Pr(soon|E1) − Pr(soon) > θ_pen by the beta test (eq. 4.6, App. B).
+
+        ``theta_pen`` is per consequent (targeted learning lowers it, §6.3). The exclusion of
+        same-variable pairs (§4.1.2 item 3) is applied here; exclusions 1–2 are built into the
+        consequent numbering. Returns (E1 id, E2 id, Pr(soon|E1), Pr(soon)).
+        """
+        n = self.resolved_steps()
+        if n <= 0:
+            return []
+        base = np.minimum(self.soon_steps / n, 1.0)                      # (c,)
+        trials = self.occurrences[:, None]
+        ok = trials >= min_points
+        if not ok.any():
+            return []
+        ev_var = self.index.event_var
+        cons_var = ev_var[self.index.event_of_cons]                      # (c,)
+        same = ev_var[:, None] == cons_var[None, :]
+        cand = ok & ~same & (self.soon_given > 0)
+        r, c = np.nonzero(cand)
+        if not len(r):
+            return []
+        s = self.soon_given[r, c]
+        f = self.occurrences[r] - s
+        thr = base[c] + theta_pen[c]
+        good = prob_above_many(thr, s, f, prior, confidence) & (thr < 1.0)
+        out = []
+        for i in np.flatnonzero(good):
+            e2 = int(self.index.event_of_cons[c[i]])
+            out.append((int(r[i]), e2, float(s[i] / self.occurrences[r[i]]), float(base[c[i]])))
+        return out
+
+    def to_state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        win = [[t, ids.tolist()] for t, ids in self.window]
+        meta = {"k": self.k, "steps": self.steps, "first_step": self.first_step, "window": win}
+        arrays = {"occurrences": self.occurrences, "soon_given": self.soon_given,
+                  "soon_steps": self.soon_steps, "last_cons": self.last_cons}
+        return meta, arrays
+
+    def load_state(self, meta: dict, arrays: dict[str, np.ndarray]) -> None:
+        self.k = int(meta["k"])
+        self.steps = int(meta["steps"])
+        self.first_step = meta["first_step"]
+        self.window = deque((int(t), np.asarray(ids, dtype=np.int64)) for t, ids in meta["window"])
+        for name in ("occurrences", "soon_given", "soon_steps", "last_cons"):
+            setattr(self, name, np.asarray(arrays[name], dtype=np.int64).copy())
+
+
+def soon_fraction(times: np.ndarray, k: int, start: int, end: int) -> float:
+    """Fraction of steps t in [start, end] with an occurrence in [t, t + k) (eq. 4.2).
+
+    The union of the windows (o − k, o] over the occurrence times o, clipped, over the span.
+    """
+    span = end - start + 1
+    if span <= 0 or len(times) == 0:
+        return 0.0
+    o = np.sort(np.asarray(times, dtype=np.int64))
+    lo = np.maximum(o - k + 1, start)
+    hi = np.minimum(o, end)
+    # Merge overlapping intervals [lo, hi].
+    covered = 0
+    cur_lo, cur_hi = int(lo[0]), int(hi[0])
+    for a, b in zip(lo[1:], hi[1:], strict=True):
+        if a <= cur_hi + 1:
+            cur_hi = max(cur_hi, int(b))
+        else:
+            covered += cur_hi - cur_lo + 1
+            cur_lo, cur_hi = int(a), int(b)
+    covered += cur_hi - cur_lo + 1
+    return covered / span
+
+
+class WindowLearner:
+    """Appendix C: the average delay k_r of successful motor → change transitions.
+
+    An *episode* starts when a motor variable u takes a new value (event u → q) and lasts while
+    u = q. A consequent change event E2 occurring during the episode is a success of the pair
+    (u → q, E2) with delay t' − t + 1 (first occurrence only); each episode is one trial.
+    """
+
+    def __init__(self, motor_vars: list[int], history: int) -> None:
+        self.motor_vars = list(motor_vars)
+        self.open: dict[int, tuple[int, int, set[int]]] = {}   # motor var -> (E1 id, t0, credited)
+        self.trials: dict[int, int] = {}                          # E1 id -> episodes
+        self.success: dict[tuple[int, int], list[int]] = {}      # (E1, E2) -> [successes, delay sum]
+        self.cons_times: dict[int, deque[int]] = {}               # E2 id -> occurrence times
+        self.history = history
+        self.first_step: int | None = None
+        self.last_step = -1
+
+    def update(self, step: int, motor_events: list[tuple[int, int]],
+               cons_events: list[int]) -> None:
+        """``motor_events``: (motor var, E1 id) that occurred; ``cons_events``: E2 ids."""
+        if self.first_step is None:
+            self.first_step = step
+        self.last_step = step
+        for var, e1 in motor_events:
+            old = self.open.get(var)
+            if old is not None:
+                self.trials[old[0]] = self.trials.get(old[0], 0) + 1
+            self.open[var] = (e1, step, set())
+        for e2 in cons_events:
+            times = self.cons_times.setdefault(e2, deque(maxlen=self.history))
+            times.append(step)
+            for e1, t0, credited in self.open.values():
+                if e2 not in credited:
+                    credited.add(e2)
+                    rec = self.success.setdefault((e1, e2), [0, 0])
+                    rec[0] += 1
+                    rec[1] += step - t0 + 1
+
+    def learnable(self, min_points: int, theta_pen: float, prior: float,
+                  confidence: float) -> list[tuple[int, int, float]]:
+        """Pairs (E1, E2, k_r) that pass the contingency test with their own window k_r."""
+        out = []
+        if self.first_step is None:
+            return out
+        for (e1, e2), (s, dsum) in sorted(self.success.items()):
+            n = self.trials.get(e1, 0)
+            if n < min_points or s == 0:
+                continue
+            s_eff = min(s, n)
+            k_r = max(1, int(round(dsum / s)))
+            base = soon_fraction(np.fromiter(self.cons_times.get(e2, ()), dtype=np.int64), k_r,
+                                 max(self.first_step, self.last_step - self.history + 1),
+                                 self.last_step)
+            thr = base + theta_pen
+            if thr < 1.0 and prob_above_many(np.array([thr]), np.array([s_eff]),
+                                             np.array([n - s_eff]), prior, confidence)[0]:
+                out.append((e1, e2, dsum / s))
+        return out
+
+    def to_state(self) -> dict:
+        return {"open": {str(k): [e, t, sorted(c)] for k, (e, t, c) in self.open.items()},
+                "trials": [[k, v] for k, v in self.trials.items()],
+                "success": [[a, b, s, d] for (a, b), (s, d) in self.success.items()],
+                "cons_times": [[k, list(v)] for k, v in self.cons_times.items()],
+                "first_step": self.first_step, "last_step": self.last_step}
+
+    def load_state(self, d: dict) -> None:
+        self.open = {int(k): (int(e), int(t), set(c)) for k, (e, t, c) in d["open"].items()}
+        self.trials = {int(k): int(v) for k, v in d["trials"]}
+        self.success = {(int(a), int(b)): [int(s), int(dd)] for a, b, s, dd in d["success"]}
+        self.cons_times = {int(k): deque(v, maxlen=self.history) for k, v in d["cons_times"]}
+        self.first_step = d["first_step"]
+        self.last_step = int(d["last_step"])

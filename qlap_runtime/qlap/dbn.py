@@ -1,0 +1,129 @@
+"""Change and magnitude DBNs with their CPTs and stored activations (§4.2–4.3, §4.5).
+
+A DBN r = ⟨C : E1 ⇒ E2⟩ is *activated* when its antecedent happens; the activation succeeds if
+the consequent follows soon (change DBNs, eq. 4.8) or is reached while the derivative is held
+(magnitude DBNs, eq. 4.21–4.22). Each resolved activation is counted in the CPT cell of the
+context value it started in, and the last ``Params.stored_activations`` activations are kept
+with the full real-valued state, so that contexts (Algorithm 3) and landmarks (Algorithm 4) can
+be re-evaluated under any discretisation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .params import Params
+from .probability import best_reliability, dbn_entropy, prob_above
+from .variables import Event
+
+CHANGE = "change"
+MAGNITUDE = "magnitude"
+
+
+@dataclass(frozen=True)
+class ModelStats:
+    """What Algorithm 1 needs to know about a DBN under some context."""
+
+    n_context: int
+    """|r|, the number of context variables."""
+    brel: float | None
+    """Best reliability, None for ⊥ (Appendix B.1)."""
+    entropy: float
+    """H(r) (eq. 4.15)."""
+    reliable: bool
+    """brel(r) > θ_SR, decided with the beta test on the best cell (§4.2.2, App. B)."""
+    best_successes: int = 0
+    """Successes in the best cell (used to pick between split antecedents, §4.4.1 step 4)."""
+    successes: int = 0
+    """All successes."""
+
+
+def model_stats(s: np.ndarray, f: np.ndarray, n_context: int, params: Params) -> ModelStats:
+    """ModelStats from per-context-value success and failure counts."""
+    brel, i = best_reliability(s, f, params.prior, params.brel_min_successes)
+    reliable = brel is not None and prob_above(params.theta_sr, float(s[i]), float(f[i]),
+                                               params.prior, params.beta_confidence)
+    return ModelStats(n_context, brel, dbn_entropy(s, f, params.prior), bool(reliable),
+                      int(s[i]) if i >= 0 else 0, int(np.sum(s)))
+
+
+class DBN:
+    """One change or magnitude DBN (its structure, CPT and activation store)."""
+
+    def __init__(self, dbn_id: int, kind: str, antecedent: Event, consequent: Event,
+                 context: tuple[int, ...], created: int, n_vars: int, capacity: int) -> None:
+        self.id = dbn_id
+        self.kind = kind
+        self.antecedent = antecedent
+        self.consequent = consequent
+        self.context = tuple(context)
+        self.created = created
+        self.ever_reliable = False
+        self.is_plan = False
+        # Activation store: a ring of the last `capacity` resolved activations.
+        self.act_x = np.full((capacity, n_vars), np.nan)
+        self.act_ok = np.zeros(capacity, dtype=bool)
+        self.act_n = 0
+        self.act_head = 0
+        self.total = 0
+        # CPT counts over the current context's values (§4.2.1).
+        self.cpt_s = np.zeros(1)
+        self.cpt_f = np.zeros(1)
+        # Change DBNs: open activations (step, x); magnitude DBNs: at most one.
+        self.pending: list[tuple[int, np.ndarray]] = []
+
+    # -- activations --------------------------------------------------------------------------
+    def record(self, x: np.ndarray, success: bool, cell: int) -> None:
+        """Store a resolved activation and count it in the CPT cell ``cell``."""
+        cap = self.act_x.shape[0]
+        self.act_x[self.act_head] = x
+        self.act_ok[self.act_head] = success
+        self.act_head = (self.act_head + 1) % cap
+        self.act_n = min(self.act_n + 1, cap)
+        self.total += 1
+        if cell >= 0:
+            if success:
+                self.cpt_s[cell] += 1
+            else:
+                self.cpt_f[cell] += 1
+
+    def stored(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stored activations (oldest first): real states and success labels."""
+        cap = self.act_x.shape[0]
+        if self.act_n < cap:
+            return self.act_x[: self.act_n], self.act_ok[: self.act_n]
+        order = np.r_[self.act_head:cap, 0:self.act_head]
+        return self.act_x[order], self.act_ok[order]
+
+    def label(self, names: list[str], value_label) -> str:
+        """The reference's notation, e.g. ⟨{h_x}: u_x→(300, +inf) ⇒ h_x.dot→+⟩."""
+        ctx = ", ".join(names[v] for v in self.context)
+        return (f"⟨{{{ctx}}}: {event_label(self.antecedent, names, value_label)} ⇒ "
+                f"{event_label(self.consequent, names, value_label)}⟩")
+
+
+def event_label(e: Event, names: list[str], value_label) -> str:
+    arrow = {1: "↑", -1: "↓"}.get(e.direction, "")
+    return f"{arrow}{names[e.var]}→{value_label(e.var, e.value)}"
+
+
+def context_cells(qs: list[np.ndarray], sizes: list[int]) -> np.ndarray:
+    """Mixed-radix index of the joint context value; −1 where any variable is unavailable."""
+    if not qs:
+        return np.zeros(0 if not len(qs) else len(qs[0]), dtype=np.int64)
+    cell = np.zeros(len(qs[0]), dtype=np.int64)
+    bad = np.zeros(len(qs[0]), dtype=bool)
+    for q, size in zip(qs, sizes, strict=True):
+        bad |= q < 0
+        cell = cell * size + np.maximum(q, 0)
+    return np.where(bad, -1, cell)
+
+
+def counts_by_cell(cells: np.ndarray, ok: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Success and failure counts per cell (rows with cell −1 are ignored)."""
+    m = cells >= 0
+    s = np.bincount(cells[m], weights=ok[m].astype(float), minlength=n_cells)
+    tot = np.bincount(cells[m], minlength=n_cells).astype(float)
+    return s, tot - s

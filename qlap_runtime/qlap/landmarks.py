@@ -1,0 +1,150 @@
+"""The two landmark searches: on DBNs (§4.4.1, Algorithm 4) and on events (§4.4.2, Algorithm 5).
+
+This module holds the numerical cores as pure functions; the learner decides what to search and
+applies what is adopted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .probability import binary_entropy_array
+
+
+@dataclass(frozen=True)
+class Cut:
+    """A Fayyad–Irani cutpoint c = (lb, ub) between two adjacent sorted values (§4.4.1)."""
+
+    gain: float
+    """Information gain G_c (eq. 4.16)."""
+    lb: float
+    """The largest value below the cut."""
+    ub: float
+    """The smallest value above the cut."""
+
+
+def best_cut(values: np.ndarray, labels: np.ndarray, min_gap: float = 0.001) -> Cut | None:
+    """The cutpoint of maximum information gain over sorted ``values`` (§4.4.1 step 1).
+
+    Cuts are considered only between adjacent distinct values with ub − lb > ``min_gap``.
+    Entropies are empirical (no prior). Ties go to the lowest cut.
+    """
+    x = np.asarray(values, dtype=float)
+    y = np.asarray(labels, dtype=float)
+    if len(x) < 2:
+        return None
+    order = np.argsort(x, kind="stable")
+    x, y = x[order], y[order]
+    n = len(x)
+    gaps = np.diff(x)
+    valid = gaps > min_gap
+    if not valid.any():
+        return None
+    left_n = np.arange(1, n)
+    left_s = np.cumsum(y)[:-1]
+    total_s = y.sum()
+    right_n = n - left_n
+    right_s = total_s - left_s
+    h = binary_entropy_array(np.array([total_s / n]))[0]
+    hl = binary_entropy_array(left_s / left_n)
+    hr = binary_entropy_array(right_s / right_n)
+    gain = h - left_n / n * hl - right_n / n * hr
+    gain = np.where(valid, gain, -np.inf)
+    i = int(np.argmax(gain))
+    return Cut(float(gain[i]), float(x[i]), float(x[i + 1]))
+
+
+def candidate_range(cut: Cut, vmin: float, vmax: float, bin_size: float,
+                    use_bounds: bool = True) -> tuple[float, float]:
+    """The candidate landmark's range (§4.4.1 step 3).
+
+    [ub, max] if ub is within one bin of the largest observed value, [min, lb] if lb is within
+    one bin of the smallest, [lb, ub] otherwise. ``use_bounds=False`` (motor variables, see
+    docs/decisions.md) always gives [lb, ub].
+    """
+    if use_bounds and bin_size > 0:
+        if vmax - cut.ub <= bin_size:
+            return cut.ub, vmax
+        if cut.lb - vmin <= bin_size:
+            return vmin, cut.lb
+    return cut.lb, cut.ub
+
+
+def is_candidate(gain: float, prob_interval: float, theta_ig: float) -> bool:
+    """G* > θ_IG and G* · Pr(v = q) > θ_IG / 2 (eq. 4.17)."""
+    return gain > theta_ig and gain * prob_interval > theta_ig / 2
+
+
+@dataclass(frozen=True)
+class BinLandmark:
+    """A bucket found by Algorithm 5."""
+
+    delta: float
+    """Pr(ṽ_{t−1} ∈ b | E(t)) − Pr(ṽ_{t−1} ∈ b) under the normalisation used."""
+    lb: float
+    ub: float
+    bin_index: int
+    normalisation: str
+    """"local" (three buckets each side) or "global" (all buckets)."""
+
+
+def _window_sums(c: np.ndarray, half: int) -> np.ndarray:
+    """Sum of c over [i − half, i + half] (clipped at the ends) for every i."""
+    cs = np.concatenate([[0.0], np.cumsum(c)])
+    i = np.arange(len(c))
+    return cs[np.minimum(i + half + 1, len(c))] - cs[np.maximum(i - half, 0)]
+
+
+class EventBinner:
+    """Algorithm 5's buckets for one variable ṽ over the stored history (§4.4.2).
+
+    Buckets of width ``bin_size`` start at the smallest value; their overall counts are computed
+    once, so each event costs one ``bincount``.
+    """
+
+    def __init__(self, all_values: np.ndarray, bin_size: float) -> None:
+        self.bin_size = bin_size
+        self.lo = float(np.min(all_values))
+        self.n_bins = int(np.floor((float(np.max(all_values)) - self.lo) / bin_size)) + 1
+        self.bins = np.clip(((all_values - self.lo) / bin_size).astype(np.int64), 0,
+                            self.n_bins - 1)
+        self.c_all = np.bincount(self.bins, minlength=self.n_bins).astype(float)
+        self.s_all = _window_sums(self.c_all, 3)
+
+    def best(self, event_rows: np.ndarray, theta_e: float, min_points: int) -> BinLandmark | None:
+        """The bucket with the largest Δ = Pr(b | E) − Pr(b) if Δ > θ_E (eq. 4.18).
+
+        ``event_rows`` index ``all_values`` at the steps t − 1 before each occurrence of E.
+        Probabilities are normalised first over three buckets each side of b ("local"), then,
+        if nothing is found, over all buckets ("global"). A bucket needs ``min_points`` event
+        values (Appendix B.2).
+        """
+        if len(event_rows) < min_points:
+            return None
+        c_ev = np.bincount(self.bins[event_rows], minlength=self.n_bins).astype(float)
+        enough = c_ev >= min_points
+        if not enough.any():
+            return None
+        s_ev = _window_sums(c_ev, 3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d_local = np.where((self.s_all > 0) & (s_ev > 0),
+                               c_ev / s_ev - self.c_all / self.s_all, -np.inf)
+        d_global = c_ev / c_ev.sum() - self.c_all / self.c_all.sum()
+        for name, d in (("local", d_local), ("global", d_global)):
+            d = np.where(enough, d, -np.inf)
+            i = int(np.argmax(d))
+            if d[i] > theta_e:
+                return BinLandmark(float(d[i]), self.lo + i * self.bin_size,
+                                   self.lo + (i + 1) * self.bin_size, i, name)
+        return None
+
+
+def event_bin_landmark(all_values: np.ndarray, event_values_rows: np.ndarray, bin_size: float,
+                       theta_e: float, min_points: int) -> BinLandmark | None:
+    """Algorithm 5 for one event and one variable; see :class:`EventBinner`."""
+    if bin_size <= 0 or len(all_values) == 0:
+        return None
+    return EventBinner(np.asarray(all_values, dtype=float), bin_size).best(
+        np.asarray(event_values_rows, dtype=np.int64), theta_e, min_points)

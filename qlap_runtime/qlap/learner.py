@@ -1,0 +1,745 @@
+"""The model learner: perception, contingencies, DBNs and landmarks on schedule (ch. 4, Alg. 2).
+
+:class:`ModelLearner` observes one step at a time (Algorithm 2 lines 2–5) and runs the batches of
+lines 6–13 every ``Params.dbn_period`` / ``Params.landmark_period`` steps. A batch is computed as
+a :class:`~.delta.Delta`, an ordered list of operations, and applied at step t + L
+(``Params.batch_lag``); L = 0 is Algorithm 2 to the letter. Applying the same deltas at the same
+steps gives the same knowledge, which is what lets the actor runtime reproduce this object.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections import deque
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from .context import is_model_improvement, update_context
+from .contingency import PairStatistics, WindowLearner
+from .dbn import CHANGE, DBN, MAGNITUDE, ModelStats, context_cells, counts_by_cell, model_stats
+from .delta import Delta, Op
+from .landmarks import EventBinner, best_cut, candidate_range, is_candidate
+from .params import Params
+from .perception import EventIndex, Percept, Perception
+from .quantity import Landmark, QuantitySpace
+from .variables import Event, Kind, VariableTable
+
+CHANGE_MINUS, CHANGE_ZERO, CHANGE_PLUS = 0, 1, 2
+
+
+class ModelLearner:
+    """QLAP's perception and model learning (ch. 3–4) as one deterministic object."""
+
+    def __init__(self, variables: VariableTable | Any, params: Params | None = None) -> None:
+        self.params = params or Params()
+        self.table = variables if isinstance(variables, VariableTable) else \
+            VariableTable.from_specs(variables)
+        self.names = [v.name for v in self.table]
+        self.perception = Perception(self.table, self.params)
+        self.k: int = self.params.k_fixed or self.params.k_initial
+        self.k_learned = self.params.k_fixed is not None
+        self.pairs = PairStatistics(self.perception.events, self.k)
+        motors = [v.index for v in self.table if v.kind is Kind.MOTOR]
+        self.window = WindowLearner(motors, self.params.event_history)
+        self.dbns: dict[int, DBN] = {}
+        self.next_id = 0
+        self.step = -1
+        self.version = 0
+        self.pending_deltas: deque[Delta] = deque()
+        self.applied: list[dict] = []          # short log of applied deltas (for knowledge())
+        # Set by the acting side (ch. 5–6); empty while only the learner runs.
+        self.reliable_actions: set[tuple[int, int]] = set()
+        self._expiry: deque[tuple[int, DBN, list]] = deque()
+        self._mag_active: dict[int, list[DBN]] = {}
+        self._reindex()
+
+    # ------------------------------------------------------------------------------------------
+    # per-step work (Algorithm 2 lines 2–5)
+    # ------------------------------------------------------------------------------------------
+    def observe(self, step: int, obs: Mapping[str, float]) -> Percept:
+        """Observe the real values of step ``step`` (motor values included) and learn.
+
+        Raises :class:`~.perception.InvalidObservation` (a ValueError naming the variable) for
+        NaN/infinite values or unknown names, leaving the learner unchanged.
+        """
+        return self.observe_vector(step, self.perception.vector(obs))
+
+    def observe_vector(self, step: int, x: np.ndarray) -> Percept:
+        """:meth:`observe` with the real values already ordered by variable index."""
+        if step <= self.step:
+            raise ValueError(f"steps must increase: got {step} after {self.step}")
+        p = self.perception.perceive(step, x)
+        self.step = step
+        self.pairs.update(step, p.event_ids)
+        if not self.k_learned:
+            self._update_window(p)
+        self._update_dbns(p)
+        while self.pending_deltas and self.pending_deltas[0].apply_at <= step:
+            self.apply_delta(self.pending_deltas.popleft())
+        if step > 0 and step % self.params.dbn_period == 0:
+            delta = self.compute_batch(step)
+            if self.params.batch_lag == 0:
+                self.apply_delta(delta)
+            else:
+                self.pending_deltas.append(delta)
+        return p
+
+    def _update_window(self, p: Percept) -> None:
+        motor_events = [(e.var, int(i)) for e, i in zip(p.events, p.event_ids, strict=True)
+                        if self.table[e.var].kind is Kind.MOTOR]
+        cons = [int(i) for e, i in zip(p.events, p.event_ids, strict=True)
+                if self.table[e.var].kind is Kind.CHANGE and e.value != CHANGE_ZERO]
+        if motor_events or cons:
+            self.window.update(p.step, motor_events, cons)
+
+    def _update_dbns(self, p: Percept) -> None:
+        t = p.step
+        # Change DBNs: expire windows that closed without the consequent (failure).
+        exp = self._expiry
+        while exp and exp[0][0] <= t:
+            _, dbn, entry = exp.popleft()
+            if not entry[2]:
+                entry[2] = True
+                dbn.pending.remove(entry)
+                self._resolve(dbn, entry[1], False)
+        # Activations by antecedent events, then consequents (soon includes t itself, eq. 4.2).
+        for e in p.events:
+            for dbn in self._by_antecedent.get(e, ()):
+                entry = [t, p.x, False]
+                dbn.pending.append(entry)
+                exp.append((t + self.k, dbn, entry))
+        for e in p.events:
+            for dbn in self._by_consequent.get((e.var, e.value), ()):
+                for entry in dbn.pending:
+                    entry[2] = True
+                    self._resolve(dbn, entry[1], True)
+                dbn.pending.clear()
+        if self._mag_by_var:
+            self._update_magnitude_dbns(p)
+
+    def _update_magnitude_dbns(self, p: Percept) -> None:
+        """§4.5: r± activated when Ẏ → [±] with Y on the near side; resolved on reach or stop."""
+        q = p.q
+        for yvar, active in list(self._mag_active.items()):
+            dvar = self._dot_of[yvar]
+            keep = []
+            for dbn in active:
+                y = dbn.consequent.value
+                d = dbn.consequent.direction
+                want = CHANGE_PLUS if d > 0 else CHANGE_MINUS
+                if q[yvar] == y:
+                    self._resolve_mag(dbn, True)
+                elif q[dvar] != want or (q[yvar] - y) * d > 0 or q[yvar] < 0:
+                    self._resolve_mag(dbn, False)
+                else:
+                    keep.append(dbn)
+            if keep:
+                self._mag_active[yvar] = keep
+            else:
+                del self._mag_active[yvar]
+        for e in p.events:
+            yvar = self.table[e.var].source
+            if yvar < 0 or e.value == CHANGE_ZERO or yvar not in self._mag_by_var:
+                continue
+            d = 1 if e.value == CHANGE_PLUS else -1
+            cur = q[yvar]
+            if cur < 0:
+                continue
+            for dbn in self._mag_by_var[yvar]:
+                if dbn.consequent.direction == d and (dbn.consequent.value - cur) * d > 0 \
+                        and not dbn.pending:
+                    dbn.pending.append([p.step, p.x, False])
+                    self._mag_active.setdefault(yvar, []).append(dbn)
+
+    def _resolve_mag(self, dbn: DBN, success: bool) -> None:
+        entry = dbn.pending.pop()
+        self._resolve(dbn, entry[1], success)
+
+    def _resolve(self, dbn: DBN, x: np.ndarray, success: bool) -> None:
+        cell = self._cell_of(dbn, x)
+        dbn.record(x, success, cell)
+
+    def _cell_of(self, dbn: DBN, x: np.ndarray) -> int:
+        cell = 0
+        for v in dbn.context:
+            q = self._value_of(v, x[v])
+            if q < 0:
+                return -1
+            cell = cell * self._size(v) + q
+        return cell
+
+    def _value_of(self, var: int, value: float) -> int:
+        if np.isnan(value):
+            return -1
+        if self.table[var].kind is Kind.NOMINAL:
+            return int(value)
+        return self.perception.spaces[var].value_of(float(value))
+
+    def _size(self, var: int) -> int:
+        return self.perception.events.sizes[var]
+
+    # ------------------------------------------------------------------------------------------
+    # indexes
+    # ------------------------------------------------------------------------------------------
+    def _reindex(self) -> None:
+        self._by_antecedent: dict[Event, list[DBN]] = {}
+        self._by_consequent: dict[tuple[int, int], list[DBN]] = {}
+        self._mag_by_var: dict[int, list[DBN]] = {}
+        self._dot_of = {v.source: v.index for v in self.table if v.kind is Kind.CHANGE}
+        for dbn in self.dbns.values():
+            if dbn.kind == CHANGE:
+                self._by_antecedent.setdefault(dbn.antecedent, []).append(dbn)
+                self._by_consequent.setdefault(
+                    (dbn.consequent.var, dbn.consequent.value), []).append(dbn)
+            else:
+                self._mag_by_var.setdefault(dbn.consequent.var, []).append(dbn)
+        self._pairs_of = {(d.antecedent, d.consequent) for d in self.dbns.values()}
+
+    # ------------------------------------------------------------------------------------------
+    # batches (Algorithm 2 lines 6–13)
+    # ------------------------------------------------------------------------------------------
+    def compute_batch(self, step: int) -> Delta:
+        """Compute the batch due at ``step`` from the data up to ``step``, as a Delta.
+
+        With a lag the batch runs on a copy of the learner, so the live state is untouched until
+        the delta is applied at ``step + L``.
+        """
+        work = self if self.params.batch_lag == 0 else self._clone_for_batch()
+        ops: list[Op] = []
+        work._recording = ops
+        try:
+            work._refresh_reliability()
+            work._learn_dbns(step)
+            work._update_contexts()
+            work._delete_dbns(step)
+            if step % self.params.landmark_period == 0:
+                work._learn_event_landmarks(step)
+                work._learn_dbn_landmarks(step)
+        finally:
+            work._recording = None
+        self.version += 1
+        delta = Delta(version=self.version, computed_at=step,
+                      apply_at=step + self.params.batch_lag, ops=tuple(ops))
+        if work is self:
+            delta = delta.mark_applied()
+        return delta
+
+    _recording: list[Op] | None = None
+
+    def _do(self, op: Op) -> None:
+        """Record an operation of the batch being computed and apply it to this state."""
+        assert self._recording is not None
+        self._recording.append(op)
+        self._apply_op(op)
+
+    def apply_delta(self, delta: Delta) -> None:
+        """Apply a batch's delta at a step boundary (idempotent for an already applied one)."""
+        if not delta.applied:
+            self._refresh_reliability()
+            for op in delta.ops:
+                self._apply_op(op)
+        self.applied.append({"version": delta.version, "computed_at": delta.computed_at,
+                             "applied_at": self.step, "ops": len(delta.ops)})
+        del self.applied[:-50]
+
+    def _clone_for_batch(self) -> ModelLearner:
+        memo: dict[int, Any] = {}
+        # The histories are only read by a batch: share them instead of copying.
+        for arr in (self.perception.hist_x, self.perception.hist_q):
+            memo[id(arr)] = arr
+        memo[id(self.pending_deltas)] = deque()
+        return copy.deepcopy(self, memo)
+
+    def _refresh_reliability(self) -> None:
+        """Sticky "sufficiently reliable at any time" flags from the CPTs (§4.2.2)."""
+        for dbn in self.dbns.values():
+            if not dbn.ever_reliable:
+                st = model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), self.params)
+                dbn.ever_reliable = st.reliable
+
+    # -- learning new DBNs (§4.1–4.2, App. C, §6.2.3, §6.3) -----------------------------------
+    def _targeted(self) -> np.ndarray:
+        """Per consequent: is it chosen for targeted learning (§6.3)?"""
+        ab = self.params.ablations
+        n = self.perception.events.n_cons
+        if ab.no_targeted:
+            return np.zeros(n, dtype=bool)
+        if ab.all_targeted:
+            return np.ones(n, dtype=bool)
+        return self.perception.satisfied_fraction() < self.params.rare_event_fraction
+
+    def _learn_dbns(self, step: int) -> None:
+        p = self.params
+        index = self.perception.events
+        if not self.k_learned:
+            found = self.window.learnable(p.min_data_points, p.theta_pen, p.prior,
+                                          p.beta_confidence)
+            if not found:
+                return
+            k = max(1, int(round(float(np.mean([kr for _, _, kr in found])))))
+            self._do(("set_k", k))
+            candidates = [(index.decode(e1), index.decode(e2)) for e1, e2, _ in found]
+        else:
+            theta = np.where(self._targeted(), p.theta_pen_targeted, p.theta_pen)
+            found4 = self.pairs.contingencies(theta, p.min_data_points, p.prior,
+                                              p.beta_confidence)
+            candidates = [(index.decode(e1), index.decode(e2)) for e1, e2, _, _ in found4]
+        for e1, e2 in sorted(candidates):
+            if self._may_add_dbn(e1, e2):
+                self._do(("add_dbn", CHANGE, list(e1), list(e2), []))
+
+    def _may_add_dbn(self, e1: Event, e2: Event) -> bool:
+        if (e1, e2) in self._pairs_of:
+            return False
+        if (e2.var, e2.value) in self.reliable_actions:
+            return False                                           # §6.2.1 item 3
+        if self.params.ablations.nrc:
+            return True
+        kind = self.table[e1.var].kind
+        if kind is Kind.MOTOR:
+            return True
+        reliable = [d for d in self.dbns.values() if d.kind == CHANGE and d.ever_reliable]
+        if kind is Kind.MAGNITUDE:                                   # §6.2.3: can move v
+            dot = self._dot_of[e1.var]
+            return any(d.consequent.var == dot for d in reliable)
+        return any(d.consequent.var == e1.var and d.consequent.value == e1.value
+                   for d in reliable)
+
+    # -- contexts (Algorithm 3) -----------------------------------------------------------------
+    def _candidates(self, dbn: DBN) -> list[int]:
+        """Valid context variables (App. D.1): magnitude with ≥ 1 landmark, or nominal."""
+        out = []
+        for v in self.table:
+            if v.index in (dbn.antecedent.var, dbn.consequent.var):
+                continue
+            if v.kind is Kind.NOMINAL or (
+                    v.kind is Kind.MAGNITUDE and self.perception.spaces[v.index].landmarks):
+                out.append(v.index)
+        return out
+
+    def evaluator(self, dbn: DBN, extra: tuple[int, QuantitySpace] | None = None,
+                  rows: np.ndarray | None = None):
+        """A function context -> ModelStats on the DBN's stored activations.
+
+        ``extra`` replaces one variable's quantity space (a candidate landmark, §4.4.1 step 4);
+        ``rows`` restricts the activations (a split antecedent).
+        """
+        X, ok = dbn.stored()
+        if rows is not None:
+            X, ok = X[rows], ok[rows]
+        cache: dict[int, np.ndarray] = {}
+
+        def column(v: int) -> np.ndarray:
+            if v not in cache:
+                if extra is not None and extra[0] == v:
+                    cache[v] = extra[1].values_of(X[:, v])
+                else:
+                    cache[v] = self.perception.quantize_var(v, X[:, v])
+            return cache[v]
+
+        def size(v: int) -> int:
+            if extra is not None and extra[0] == v:
+                return extra[1].size
+            return self._size(v)
+
+        def evaluate(ctx: tuple[int, ...]) -> ModelStats:
+            sizes = [size(v) for v in ctx]
+            n_cells = int(np.prod(sizes)) if ctx else 1
+            cells = context_cells([column(v) for v in ctx], sizes) if ctx else \
+                np.zeros(len(ok), dtype=np.int64)
+            s, f = counts_by_cell(cells, ok, n_cells)
+            return model_stats(s, f, len(ctx), self.params)
+
+        return evaluate
+
+    def _update_contexts(self) -> None:
+        for dbn_id in sorted(self.dbns):
+            dbn = self.dbns[dbn_id]
+            if dbn.act_n < 1:
+                continue
+            new = update_context(dbn.context, self._candidates(dbn), self.evaluator(dbn),
+                                 self.params)
+            if new is not None:
+                self._do(("set_context", dbn_id, list(new)))
+
+    def _delete_dbns(self, step: int) -> None:
+        """§6.2.3 (old, never deterministic, not a plan) and §6.2.1 item 4."""
+        for dbn_id in sorted(self.dbns):
+            dbn = self.dbns[dbn_id]
+            if dbn.kind != CHANGE or dbn.is_plan:
+                continue
+            old = step - dbn.created > self.params.dbn_max_age and not dbn.ever_reliable
+            done = (dbn.consequent.var, dbn.consequent.value) in self.reliable_actions
+            if old or done:
+                self._do(("delete_dbn", dbn_id))
+
+    # -- landmarks on events (Algorithm 5) --------------------------------------------------
+    def _learn_event_landmarks(self, step: int) -> None:
+        p = self.params
+        hx, hq = self.perception.history()
+        if len(hx) < 2:
+            return
+        cands: list[tuple[float, int, int, int, float, float]] = []  # Δ, event, v, q, lb, ub
+        prev_rows = np.arange(len(hx) - 1)
+        events: list[tuple[int, int, np.ndarray]] = []
+        for c in self.table.of_kind(Kind.CHANGE):
+            for val in (CHANGE_MINUS, CHANGE_PLUS):
+                if (c.index, val) in self.reliable_actions:
+                    continue                                           # §6.2.1 item 1
+                col = hq[:, c.index]
+                occ = np.flatnonzero((col[1:] == val) & (col[:-1] != val) & (col[:-1] >= 0))
+                if len(occ) >= p.min_data_points:
+                    events.append((c.index, val, occ))       # rows t−1 of each event at t
+        if not events:
+            return
+        for v in self.table.of_kind(Kind.MOTOR, Kind.MAGNITUDE):
+            b = self.perception.bin_size(v.index)
+            vals = hx[:-1, v.index]
+            good = ~np.isnan(vals)
+            if b <= 0 or good.sum() < p.min_data_points:
+                continue
+            binner = EventBinner(np.where(good, vals, np.nanmin(vals)), b)
+            space = self.perception.spaces[v.index]
+            for cvar, val, occ in events:
+                occ = occ[good[occ]]
+                found = binner.best(occ, p.theta_e, p.min_data_points)
+                if found is None:
+                    continue
+                if any(found.lb - 2 * b <= lm.ub and lm.lb <= found.ub + 2 * b
+                       for lm in space.landmarks):
+                    continue                                           # D.3 item 1
+                q = space.interval_of_range(found.lb, found.ub)
+                if q is None:
+                    continue
+                eid = cvar * 3 + val
+                cands.append((found.delta, eid, v.index, q, found.lb, found.ub))
+        # D.3 items 2–3: one per (v, q) and one per event, the highest Δ first.
+        cands.sort(key=lambda c: (-c[0], c[1], c[2], c[3]))
+        used_vq: set[tuple[int, int]] = set()
+        used_e: set[int] = set()
+        for _, eid, var, q, lb, ub in cands:
+            if (var, q) in used_vq or eid in used_e:
+                continue
+            used_vq.add((var, q))
+            used_e.add(eid)
+            self._do(("add_landmark", var, lb, ub, "event", step, None, None, None))
+
+    # -- landmarks on DBNs (Algorithm 4) ----------------------------------------------------
+    def _prob_interval(self, var: int, space: QuantitySpace) -> np.ndarray:
+        hx, _ = self.perception.history()
+        col = hx[:, var]
+        col = col[~np.isnan(col)]
+        if not len(col):
+            return np.zeros(space.size)
+        return np.bincount(space.values_of(col), minlength=space.size) / len(col)
+
+    def _learn_dbn_landmarks(self, step: int) -> None:
+        p = self.params
+        found: list[tuple[float, int, int, int, tuple]] = []   # wgain, dbn, var, q, proposal
+        prob_cache: dict[int, np.ndarray] = {}
+        for dbn_id in sorted(self.dbns):
+            dbn = self.dbns[dbn_id]
+            if dbn.kind != CHANGE or dbn.act_n < p.min_data_points:
+                continue
+            X, ok = dbn.stored()
+            r = self.evaluator(dbn)(dbn.context)
+            best: tuple | None = None
+            for v in self.table.of_kind(Kind.MOTOR, Kind.MAGNITUDE):
+                var = v.index
+                if var == dbn.antecedent.var and v.kind is not Kind.MOTOR:
+                    continue                                            # App. D.2
+                col = X[:, var]
+                qv = self.perception.quantize_var(var, col)
+                space = self.perception.spaces[var]
+                if var not in prob_cache:
+                    prob_cache[var] = self._prob_interval(var, space)
+                groups = [np.ones(len(ok), dtype=bool)]
+                if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
+                    cq = self.perception.quantize_var(dbn.context[0], X[:, dbn.context[0]])
+                    groups += [cq == g for g in np.unique(cq[cq >= 0])]
+                for q in range(0, space.size, 2):
+                    in_q = qv == q
+                    if in_q.sum() < p.min_data_points:
+                        continue                                        # App. B.2 item 2
+                    for g in groups:
+                        m = in_q & g
+                        if m.sum() < 2:
+                            continue
+                        cut = best_cut(col[m], ok[m], p.cut_min_gap)
+                        if cut is None or not is_candidate(cut.gain, prob_cache[var][q],
+                                                           p.theta_ig):
+                            continue
+                        wgain = cut.gain * prob_cache[var][q]
+                        if best is not None and wgain <= best[0]:
+                            continue
+                        lb, ub = candidate_range(cut, float(col[in_q].min()),
+                                                 float(col[in_q].max()),
+                                                 self.perception.bin_size(var),
+                                                 use_bounds=v.kind is Kind.MAGNITUDE)
+                        if space.interval_of_range(lb, ub) != q:
+                            continue
+                        prop = self._landmark_proposal(dbn, r, var, lb, ub, X)
+                        if prop is not None:
+                            best = (wgain, dbn_id, var, q, prop)
+            if best is not None:
+                found.append(best)
+        # D.2: one landmark per DBN (best weighted gain) and per (v, q).
+        found.sort(key=lambda f: (-f[0], f[1]))
+        used: set[tuple[int, int]] = set()
+        for _, dbn_id, var, q, (lb, ub, ante, ctx) in found:
+            if (var, q) in used:
+                continue
+            used.add((var, q))
+            self._do(("add_landmark", var, lb, ub, "dbn", step, dbn_id, ante, ctx))
+
+    def _landmark_proposal(self, dbn: DBN, r: ModelStats, var: int, lb: float, ub: float,
+                           X: np.ndarray) -> tuple | None:
+        """Step 4 of §4.4.1: r' with the landmark; returned if isModelImprovement(r, r')."""
+        space = copy.deepcopy(self.perception.spaces[var])
+        try:
+            split = space.insert(Landmark(lb, ub))
+        except ValueError:
+            return None
+        if var == dbn.antecedent.var:
+            if dbn.antecedent.value != split:
+                return None
+            qv = space.values_of(X[:, var])
+            best = None
+            for half in (split, split + 2):                 # below and above the landmark
+                st = self.evaluator(dbn, (var, space), rows=qv == half)(dbn.context)
+                if best is None or st.successes > best[1].successes:
+                    best = (half, st)
+            assert best is not None
+            if is_model_improvement(r, best[1], self.params):
+                return (lb, ub, [var, best[0], dbn.antecedent.direction], None)
+            return None
+        ctx = dbn.context
+        if var not in ctx:
+            if len(ctx) >= self.params.max_context_vars:
+                return None
+            ctx = tuple(sorted((*ctx, var)))
+        st = self.evaluator(dbn, (var, space))(ctx)
+        if is_model_improvement(r, st, self.params):
+            return (lb, ub, None, list(ctx))
+        return None
+
+    # ------------------------------------------------------------------------------------------
+    # applying operations (shared by the batch and by delayed deltas)
+    # ------------------------------------------------------------------------------------------
+    def _apply_op(self, op: Op) -> None:
+        kind = op[0]
+        if kind == "set_k":
+            self.k = int(op[1])
+            self.k_learned = True
+            self.pairs.k = self.k
+            self.pairs.reset(self.perception.events)
+        elif kind == "add_dbn":
+            _, dkind, e1, e2, ctx = op
+            self._add_dbn(dkind, Event(*e1), Event(*e2), tuple(ctx))
+        elif kind == "set_context":
+            dbn = self.dbns.get(int(op[1]))
+            if dbn is not None:
+                dbn.context = tuple(op[2])
+                self._recount(dbn)
+        elif kind == "delete_dbn":
+            self._delete(int(op[1]))
+        elif kind == "add_landmark":
+            _, var, lb, ub, source, step, dbn_id, ante, ctx = op
+            self._add_landmark(int(var), Landmark(float(lb), float(ub), int(step), source),
+                               dbn_id, ante, ctx)
+        else:
+            raise ValueError(f"unknown delta operation {kind!r}")
+        self._reindex()
+
+    def _add_dbn(self, kind: str, e1: Event, e2: Event, ctx: tuple[int, ...]) -> DBN | None:
+        if (e1, e2) in self._pairs_of:
+            return None
+        dbn = DBN(self.next_id, kind, e1, e2, ctx, max(self.step, 0), len(self.table),
+                  self.params.stored_activations)
+        self.next_id += 1
+        self._recount(dbn)
+        self.dbns[dbn.id] = dbn
+        self._pairs_of.add((e1, e2))
+        return dbn
+
+    def _delete(self, dbn_id: int) -> None:
+        dbn = self.dbns.pop(dbn_id, None)
+        if dbn is None:
+            return
+        for entry in dbn.pending:
+            entry[2] = True
+        dbn.pending.clear()
+        self._expiry = deque(x for x in self._expiry if x[1] is not dbn)
+        for yvar, active in list(self._mag_active.items()):
+            if dbn in active:
+                active.remove(dbn)
+                if not active:
+                    del self._mag_active[yvar]
+
+    def _recount(self, dbn: DBN) -> None:
+        """Recompute the CPT from the stored activations (context or landmarks changed)."""
+        sizes = [self._size(v) for v in dbn.context]
+        n_cells = int(np.prod(sizes)) if sizes else 1
+        X, ok = dbn.stored()
+        if dbn.context:
+            cells = context_cells([self.perception.quantize_var(v, X[:, v])
+                                   for v in dbn.context], sizes)
+        else:
+            cells = np.zeros(len(ok), dtype=np.int64)
+        dbn.cpt_s, dbn.cpt_f = counts_by_cell(cells, ok, n_cells)
+
+    def _add_landmark(self, var: int, lm: Landmark, dbn_id: int | None, ante: list | None,
+                      ctx: list | None) -> None:
+        space = self.perception.spaces[var]
+        if space.interval_of_range(lm.lb, lm.ub) is None and space.landmarks:
+            return                                  # overlaps since computed: skip, deterministic
+        old_index = self.perception.events
+        split = self.perception.add_landmark(var, lm)
+        new_index = self.perception.events
+        # How landmarks change DBNs (§4.4.1): remap events on var, refresh CPTs.
+        for d_id in sorted(self.dbns):
+            dbn = self.dbns[d_id]
+            if dbn.kind != CHANGE:
+                continue
+            a = dbn.antecedent
+            if a.var == var:
+                if d_id == dbn_id and ante is not None:
+                    dbn.antecedent = Event(*ante)
+                elif a.value > split:
+                    dbn.antecedent = Event(var, a.value + 2, a.direction)
+                elif a.value == split:
+                    dbn.antecedent = self._choose_half(dbn, var, split, a.direction)
+            if d_id == dbn_id and ctx is not None:
+                dbn.context = tuple(ctx)
+            if var in dbn.context or a.var == var or d_id == dbn_id:
+                self._recount(dbn)
+        # Drop change DBNs that became duplicates.
+        seen: set[tuple[Event, Event]] = set()
+        for d_id in sorted(self.dbns):
+            dbn = self.dbns[d_id]
+            key = (dbn.antecedent, dbn.consequent)
+            if key in seen:
+                self._delete(d_id)
+            seen.add(key)
+        if self.table[var].kind is Kind.MAGNITUDE:
+            self._rebuild_magnitude_dbns(var, split)
+        self._remap_pairs(old_index, new_index, var, split)
+        if not self.k_learned:
+            self.window = WindowLearner(self.window.motor_vars, self.params.event_history)
+
+    def _choose_half(self, dbn: DBN, var: int, split: int, direction: int) -> Event:
+        """The half of a split antecedent interval with more successes (§4.4.1 step 4)."""
+        X, ok = dbn.stored()
+        qv = self.perception.quantize_var(var, X[:, var])
+        lo = int(ok[qv == split].sum())
+        hi = int(ok[qv == split + 2].sum())
+        return Event(var, split + 2 if hi > lo else split, direction)
+
+    def _rebuild_magnitude_dbns(self, var: int, split: int) -> None:
+        """§4.5: two DBNs per value of a magnitude variable; remapped after a new landmark."""
+        old = {(d.consequent.value, d.consequent.direction): d
+               for d in self.dbns.values() if d.kind == MAGNITUDE and d.consequent.var == var}
+        for (val, d), dbn in sorted(old.items(), key=lambda kv: kv[1].id):
+            if val == split:
+                self._delete(dbn.id)
+            elif val > split:
+                dbn.consequent = Event(var, val + 2, d)
+        size = self.perception.spaces[var].size
+        dot = self._dot_of[var]
+        existing = {(d.consequent.value, d.consequent.direction)
+                    for d in self.dbns.values() if d.kind == MAGNITUDE and d.consequent.var == var}
+        for val in range(size):
+            for d, ante_val in ((1, CHANGE_PLUS), (-1, CHANGE_MINUS)):
+                if (d > 0 and val == 0) or (d < 0 and val == size - 1):
+                    continue                                  # unreachable from that side
+                if (val, d) not in existing:
+                    self._add_dbn(MAGNITUDE, Event(dot, ante_val, 0), Event(var, val, d), ())
+        for dbn in self.dbns.values():
+            if dbn.kind == MAGNITUDE and dbn.consequent.var == var:
+                self._recount(dbn)
+
+    def _remap_pairs(self, old: EventIndex, new: EventIndex, var: int, split: int) -> None:
+        """Keep the pair statistics of unaffected events across a new landmark."""
+        emap = np.full(old.n_events, -1, dtype=np.int64)
+        for eid in range(old.n_events):
+            e = old.decode(eid)
+            if e.var == var:
+                if e.value == split:
+                    continue
+                if e.value > split:
+                    e = Event(var, e.value + 2, e.direction)
+            emap[eid] = new.encode(e)
+        cmap = np.full(old.n_cons, -1, dtype=np.int64)
+        for c in range(old.n_cons):
+            cmap[c] = new.cons_of_event[emap[old.event_of_cons[c]]]
+        ps = self.pairs
+        keep_e = np.flatnonzero(emap >= 0)
+        occ = np.zeros(new.n_events, dtype=np.int64)
+        occ[emap[keep_e]] = ps.occurrences[keep_e]
+        sg = np.zeros((new.n_events, new.n_cons), dtype=np.int64)
+        sg[np.ix_(emap[keep_e], cmap)] = ps.soon_given[np.ix_(keep_e, np.arange(old.n_cons))]
+        ss = np.zeros(new.n_cons, dtype=np.int64)
+        ss[cmap] = ps.soon_steps
+        lc = np.full(new.n_cons, -(10**12), dtype=np.int64)
+        lc[cmap] = ps.last_cons
+        window = deque((t, emap[ids][emap[ids] >= 0]) for t, ids in ps.window)
+        ps.index = new
+        ps.occurrences, ps.soon_given, ps.soon_steps, ps.last_cons = occ, sg, ss, lc
+        ps.window = window
+
+    # ------------------------------------------------------------------------------------------
+    # reading the knowledge
+    # ------------------------------------------------------------------------------------------
+    def value_label(self, var: int, value: int) -> str:
+        v = self.table[var]
+        if v.kind in (Kind.NOMINAL, Kind.CHANGE):
+            return v.values[value] if v.kind is Kind.NOMINAL else f"[{v.values[value]}]"
+        return self.perception.spaces[var].label(value)
+
+    def dbn_label(self, dbn: DBN) -> str:
+        return dbn.label(self.names, self.value_label)
+
+    def knowledge(self) -> dict[str, Any]:
+        """A JSON-ready summary of what has been learned (landmarks, k, DBNs)."""
+        lms = {}
+        for v in self.table.of_kind(Kind.MOTOR, Kind.MAGNITUDE):
+            lms[v.name] = [dict(m, label=lm.label()) for m, lm in
+                           zip(self.perception.spaces[v.index].to_json(),
+                               self.perception.spaces[v.index].landmarks, strict=True)]
+        dbns = []
+        for dbn_id in sorted(self.dbns):
+            d = self.dbns[dbn_id]
+            st = model_stats(d.cpt_s, d.cpt_f, len(d.context), self.params)
+            dbns.append({
+                "id": d.id, "kind": d.kind, "label": self.dbn_label(d),
+                "antecedent": self._event_json(d.antecedent),
+                "consequent": self._event_json(d.consequent),
+                "context": [self.names[v] for v in d.context],
+                "brel": st.brel, "entropy": round(st.entropy, 12),
+                "sufficiently_reliable": d.ever_reliable, "plan": d.is_plan,
+                "activations": d.total, "created": d.created})
+        return {"step": self.step, "k": self.k, "k_learned": self.k_learned,
+                "landmarks": lms, "dbns": dbns}
+
+    def _event_json(self, e: Event) -> dict[str, Any]:
+        return {"variable": self.names[e.var], "value": self.value_label(e.var, e.value),
+                "index": e.value, "direction": e.direction}
+
+    def find_dbns(self, antecedent_var: str | None = None, consequent_var: str | None = None,
+                  kind: str = CHANGE) -> list[DBN]:
+        """DBNs filtered by variable names (for tests and tools)."""
+        out = []
+        for d in self.dbns.values():
+            if d.kind != kind:
+                continue
+            if antecedent_var is not None and self.names[d.antecedent.var] != antecedent_var:
+                continue
+            if consequent_var is not None and self.names[d.consequent.var] != consequent_var:
+                continue
+            out.append(d)
+        return sorted(out, key=lambda d: d.id)
+
+    def stats(self, dbn: DBN) -> ModelStats:
+        return model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), self.params)

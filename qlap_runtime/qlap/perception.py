@@ -1,0 +1,302 @@
+"""Perception: raw values -> qualitative state and events (ch. 3, §3.1–3.2).
+
+Each step, the real values of the world's variables (motors included) become a vector over the
+agent's variables, with the direction of change of each magnitude computed here as
+ṽ(t) − ṽ(t−1). Every value is mapped to its qualitative value with the current landmarks
+(vectorised over all variables), and events X → x are the variables whose value changed;
+on magnitude variables they carry ↑ or ↓.
+
+Bounded histories of real and qualitative values are kept for the landmark searches (§4.4,
+§8.3): a ring of ``Params.event_history`` steps.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from .params import Params
+from .quantity import Landmark, QuantitySpace
+from .variables import Event, Kind, VariableTable
+
+
+class InvalidObservation(ValueError):
+    """An observation with a NaN/infinite value, an unknown variable or a bad nominal value."""
+
+
+@dataclass(frozen=True)
+class Percept:
+    """The qualitative view of one step."""
+
+    step: int
+    """Agent step t."""
+    x: np.ndarray
+    """Real values by variable index (derivatives included); NaN where unavailable."""
+    q: np.ndarray
+    """Qualitative values by variable index; −1 where unavailable."""
+    events: tuple[Event, ...]
+    """Events X_t → x of this step (§3.2)."""
+    event_ids: np.ndarray
+    """The same events as ids of the current :class:`EventIndex`."""
+
+
+class EventIndex:
+    """Numbers every possible event given the current quantity spaces.
+
+    A magnitude value has two events (↑ then ↓); any other value one. Consequent candidates
+    (§4.1.2 exclusions 1–2: not on a magnitude, not to [0] of a change variable; motors are never
+    consequents since the agent sets them) get a second, compact numbering.
+    """
+
+    def __init__(self, table: VariableTable, sizes: list[int]) -> None:
+        self.table = table
+        self.sizes = list(sizes)
+        self.mult = np.array([2 if v.kind is Kind.MAGNITUDE else 1 for v in table], dtype=np.int64)
+        counts = self.mult * np.array(self.sizes, dtype=np.int64)
+        self.offset = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        self.n_events = int(counts.sum())
+        self.event_var = np.repeat(np.arange(len(table)), counts)
+        cons = np.full(self.n_events, -1, dtype=np.int64)
+        c = 0
+        for v in table:
+            if v.kind is Kind.CHANGE:
+                vals = [0, 2]
+            elif v.kind is Kind.NOMINAL:
+                vals = list(range(self.sizes[v.index]))
+            else:
+                continue
+            for val in vals:
+                cons[self.offset[v.index] + val] = c
+                c += 1
+        self.cons_of_event = cons
+        self.n_cons = c
+        self.event_of_cons = np.flatnonzero(cons >= 0)
+
+    def encode(self, e: Event) -> int:
+        v = self.table[e.var]
+        if not 0 <= e.value < self.sizes[e.var]:
+            raise ValueError(f"value {e.value} outside Q({v.name}) of size {self.sizes[e.var]}")
+        if v.kind is Kind.MAGNITUDE:
+            if e.direction not in (1, -1):
+                raise ValueError(f"event on magnitude {v.name} needs direction ±1")
+            return int(self.offset[e.var] + 2 * e.value + (0 if e.direction > 0 else 1))
+        return int(self.offset[e.var] + e.value)
+
+    def decode(self, eid: int) -> Event:
+        var = int(self.event_var[eid])
+        rel = int(eid - self.offset[var])
+        if self.mult[var] == 2:
+            return Event(var, rel // 2, 1 if rel % 2 == 0 else -1)
+        return Event(var, rel, 0)
+
+
+class Perception:
+    """Maps raw observations to qualitative states and events with the current landmarks."""
+
+    def __init__(self, table: VariableTable, params: Params) -> None:
+        self.table = table
+        self.params = params
+        n = len(table)
+        self.spaces: list[QuantitySpace] = []
+        for v in table:
+            if v.kind is Kind.MOTOR:
+                b = params.motor_zero_band
+                self.spaces.append(QuantitySpace([Landmark(-b, b)]))
+            elif v.kind is Kind.CHANGE:
+                b = params.derivative_zero_band
+                self.spaces.append(QuantitySpace([Landmark(-b, b)]))
+            else:
+                self.spaces.append(QuantitySpace())
+        self._names = [v.name for v in table]
+        self._world_idx = np.array([v.index for v in table if v.kind is not Kind.CHANGE])
+        self._world_names = [v.name for v in table if v.kind is not Kind.CHANGE]
+        self._change_idx = np.array([v.index for v in table if v.kind is Kind.CHANGE], dtype=int)
+        self._change_src = np.array([v.source for v in table if v.kind is Kind.CHANGE],
+                                    dtype=int)
+        self._nominal_idx = np.array([v.index for v in table if v.kind is Kind.NOMINAL],
+                                     dtype=int)
+        self._nominal_size = np.array([len(v.values) for v in table if v.kind is Kind.NOMINAL])
+        self._ordered_idx = np.array([v.index for v in table if v.kind is not Kind.NOMINAL],
+                                     dtype=int)
+        self._change_and_nominal = np.array(
+            [v.index for v in table if v.kind in (Kind.CHANGE, Kind.NOMINAL)], dtype=int)
+        self._is_mag = np.array([v.kind is Kind.MAGNITUDE for v in table])
+        self._real_idx = np.array([v.index for v in table
+                                   if v.kind in (Kind.MOTOR, Kind.MAGNITUDE)], dtype=int)
+        self._rebuild()
+        self.prev_x = np.full(n, np.nan)
+        self.prev_q = np.full(n, -1, dtype=np.int64)
+        # Bounded histories (§8.3): real values and qualitative values of the last H steps.
+        cap = params.event_history
+        self.hist_x = np.full((cap, n), np.nan)
+        self.hist_q = np.full((cap, n), -1, dtype=np.int16)
+        self.hist_len = 0
+        self.hist_head = 0
+        # Running average change per variable (§4.4.2 bin size); sums over the whole run.
+        self.change_sum = np.zeros(n)
+        self.change_count = np.zeros(n, dtype=np.int64)
+        # How often each consequent event is satisfied (targeted learning, §6.3).
+        self.satisfied = np.zeros(self.events.n_cons, dtype=np.int64)
+        self.steps_seen = 0
+
+    # -- landmarks --------------------------------------------------------------------------
+    def _rebuild(self) -> None:
+        """Recompute the padded landmark matrices and the event index after a change."""
+        idx = self._ordered_idx
+        maxl = max([len(self.spaces[i].landmarks) for i in idx] + [1])
+        self._lb = np.full((len(idx), maxl), np.inf)
+        self._ub = np.full((len(idx), maxl), np.inf)
+        self._nlm = np.zeros(len(idx), dtype=np.int64)
+        for r, i in enumerate(idx):
+            lms = self.spaces[i].landmarks
+            self._nlm[r] = len(lms)
+            for c, lm in enumerate(lms):
+                self._lb[r, c] = lm.lb
+                self._ub[r, c] = lm.ub
+        self._rows = np.arange(len(idx))
+        sizes = [len(v.values) if v.kind is Kind.NOMINAL else self.spaces[v.index].size
+                 for v in self.table]
+        self.events = EventIndex(self.table, sizes)
+
+    def add_landmark(self, var: int, lm: Landmark) -> int:
+        """Insert a landmark on a motor or magnitude variable; returns the split interval."""
+        v = self.table[var]
+        if v.kind not in (Kind.MOTOR, Kind.MAGNITUDE):
+            raise ValueError(f"landmarks are learned only on motor and magnitude variables, "
+                             f"not on {v.name} ({v.kind.value})")
+        split = self.spaces[var].insert(lm)
+        self._rebuild()
+        # Keep the previous qualitative value consistent with the new numbering so that the
+        # next step does not report spurious events.
+        if not math.isnan(self.prev_x[var]):
+            self.prev_q[var] = self.spaces[var].value_of(float(self.prev_x[var]))
+        return split
+
+    def quantize(self, x: np.ndarray) -> np.ndarray:
+        """Qualitative values of a full real vector (or a matrix of them, rows = steps)."""
+        x = np.asarray(x, dtype=float)
+        single = x.ndim == 1
+        X = x[None, :] if single else x
+        Q = np.full(X.shape, -1, dtype=np.int64)
+        xo = X[:, self._ordered_idx]                                   # (T, m)
+        less = self._ub[None, :, :] < xo[:, :, None]                   # (T, m, L)
+        j = less.sum(axis=2)
+        jc = np.minimum(j, self._lb.shape[1] - 1)
+        lbj = self._lb[self._rows[None, :], jc]
+        at = (j < self._nlm[None, :]) & (xo >= lbj)
+        qo = 2 * j + at
+        Q[:, self._ordered_idx] = np.where(np.isnan(xo), -1, qo)
+        if len(self._nominal_idx):
+            xn = X[:, self._nominal_idx]
+            Q[:, self._nominal_idx] = np.where(np.isnan(xn), -1, np.nan_to_num(xn, nan=-1))
+        return Q[0] if single else Q
+
+    def quantize_var(self, var: int, x: np.ndarray) -> np.ndarray:
+        """Qualitative values of one variable's real values (nominal: the index itself)."""
+        if self.table[var].kind is Kind.NOMINAL:
+            x = np.asarray(x, dtype=float)
+            return np.where(np.isnan(x), -1, np.nan_to_num(x, nan=-1)).astype(np.int64)
+        return self.spaces[var].values_of(x)
+
+    # -- the per-step work ------------------------------------------------------------------
+    def vector(self, obs: Mapping[str, float]) -> np.ndarray:
+        """Real values of the world variables (derivative slots left NaN), validated."""
+        n = len(self.table)
+        x = np.full(n, np.nan)
+        by_name = self.table.by_name
+        for name, value in obs.items():
+            v = by_name.get(name)
+            if v is None or v.kind is Kind.CHANGE:
+                raise InvalidObservation(
+                    f"unknown variable {name!r} in observation; known: "
+                    f"{', '.join(self._world_names)}")
+            try:
+                x[v.index] = float(value)
+            except (TypeError, ValueError):
+                raise InvalidObservation(
+                    f"variable {name!r} has non-numeric value {value!r}") from None
+        return x
+
+    def perceive(self, step: int, x: np.ndarray) -> Percept:
+        """Turn the real vector of one step into qualitative values and events.
+
+        Raises :class:`InvalidObservation` naming the variable if an available value is NaN or
+        infinite, or a nominal value is not one of its indices; the state is then unchanged.
+        """
+        x = np.array(x, dtype=float)
+        self._validate(step, x)
+        # Direction of change per agent step (§3.1): ṽ(t) − ṽ(t−1).
+        x[self._change_idx] = x[self._change_src] - self.prev_x[self._change_src]
+        q = self.quantize(x)
+        prev = self.prev_q
+        changed = (q != prev) & (q >= 0) & (prev >= 0)
+        ev_vars = np.flatnonzero(changed)
+        events: list[Event] = []
+        ids = np.empty(len(ev_vars), dtype=np.int64)
+        off, mult = self.events.offset, self.events.mult
+        for k, var in enumerate(ev_vars):
+            val = int(q[var])
+            if self._is_mag[var]:
+                d = 1 if val > prev[var] else -1
+                events.append(Event(int(var), val, d))
+                ids[k] = off[var] + 2 * val + (0 if d > 0 else 1)
+            else:
+                events.append(Event(int(var), val, 0))
+                ids[k] = off[var] + val * mult[var]
+        # Running statistics for the landmark searches.
+        ri = self._real_idx
+        d = np.abs(x[ri] - self.prev_x[ri])
+        moved = d > self.params.change_epsilon
+        self.change_sum[ri[moved]] += d[moved]
+        self.change_count[ri[moved]] += 1
+        cons = self.events.cons_of_event
+        sat_ev = off[self._change_and_nominal] + q[self._change_and_nominal] * mult[self._change_and_nominal]
+        valid = q[self._change_and_nominal] >= 0
+        c = cons[sat_ev[valid]]
+        self.satisfied[c[c >= 0]] += 1
+        self.steps_seen += 1
+        cap = self.hist_x.shape[0]
+        self.hist_x[self.hist_head] = x
+        self.hist_q[self.hist_head] = q
+        self.hist_head = (self.hist_head + 1) % cap
+        self.hist_len = min(self.hist_len + 1, cap)
+        self.prev_x = x
+        self.prev_q = q
+        return Percept(step, x, q, tuple(events), ids)
+
+    def _validate(self, step: int, x: np.ndarray) -> None:
+        world = x[self._world_idx]
+        bad = ~np.isfinite(world)
+        if bad.any():
+            for i in self._world_idx[bad]:
+                v = self.table[i]
+                if np.isnan(x[i]) and step < v.available_from:
+                    continue
+                raise InvalidObservation(
+                    f"variable {v.name!r} has non-finite value {x[i]!r} at step {step}")
+        for i, size in zip(self._nominal_idx, self._nominal_size, strict=True):
+            val = x[i]
+            if not np.isnan(val) and (val != int(val) or not 0 <= val < size):
+                raise InvalidObservation(
+                    f"nominal variable {self.table[i].name!r} has value {val!r}; expected an "
+                    f"index in 0..{size - 1} ({', '.join(self.table[i].values)})")
+
+    def history(self) -> tuple[np.ndarray, np.ndarray]:
+        """The stored real and qualitative histories in time order (oldest first)."""
+        cap = self.hist_x.shape[0]
+        if self.hist_len < cap:
+            return self.hist_x[: self.hist_len], self.hist_q[: self.hist_len]
+        order = np.r_[self.hist_head:cap, 0:self.hist_head]
+        return self.hist_x[order], self.hist_q[order]
+
+    def bin_size(self, var: int) -> float:
+        """Bin size for ṽ: twice the average change (§4.4.2); 0 if it never changed."""
+        n = self.change_count[var]
+        return 2.0 * self.change_sum[var] / n if n else 0.0
+
+    def satisfied_fraction(self) -> np.ndarray:
+        """Fraction of steps each consequent event was satisfied (§6.3 "sufficiently rare")."""
+        return self.satisfied / max(1, self.steps_seen)
