@@ -1,0 +1,281 @@
+"""The world contract: what every world (core, core2d, pong, a wrapped Gymnasium env) offers.
+
+A world is a continuous environment seen through named variables (§2 of the reference):
+
+* **motor** variables are set by the agent at each step (a float within ``[low, high]``);
+* **magnitude** variables are sensed real values;
+* **nominal** variables are sensed labels, carried in the observation as the label's index
+  written as a float (``0.0``, ``1.0``, ...).
+
+Worlds never compute derivatives: the direction of change of a magnitude ``v`` (written
+``v.dot``) is the perception side's business. Tasks that need it compare two consecutive
+observations with the same zero band the agent uses (:data:`DOT_BAND`).
+
+One agent step is ``World.substeps`` physics substeps. Everything random in a world comes from
+``World.rng``, a :class:`numpy.random.Generator` seeded by ``reset(seed)``: the same seed and the
+same motor sequence give identical observations.
+"""
+
+from __future__ import annotations
+
+import abc
+import enum
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, ClassVar
+
+import numpy as np
+
+__all__ = [
+    "DOT_BAND",
+    "Goal",
+    "Task",
+    "VarKind",
+    "VariableSpec",
+    "World",
+    "direction",
+]
+
+#: The zero band the agent uses on directions of change: a per-step change ṽ(t) − ṽ(t−1)
+#: within ±DOT_BAND is "0" (reference §4.4.1, footnote 3). Tasks use it to judge ".dot" goals.
+DOT_BAND = 0.1
+
+
+class VarKind(enum.StrEnum):
+    """The kind of a world variable."""
+
+    MOTOR = "motor"
+    """Set by the agent; a float within [low, high]."""
+    MAGNITUDE = "magnitude"
+    """A sensed real value."""
+    NOMINAL = "nominal"
+    """A sensed label; the observation carries the label's index as a float."""
+
+
+@dataclass(frozen=True)
+class VariableSpec:
+    """One variable of a world's variable table."""
+
+    name: str
+    """Unique within the world, e.g. ``"h_x"``, ``"u_x"``, ``"T"``."""
+    kind: VarKind
+    """Motor, magnitude or nominal."""
+    meaning: str
+    """One line, including the sign convention."""
+    low: float | None = None
+    """Motors: the lowest motor value accepted (required for motors)."""
+    high: float | None = None
+    """Motors: the highest motor value accepted (required for motors)."""
+    values: tuple[str, ...] = ()
+    """Nominal: the labels; the observation carries the index as a float (0.0, 1.0, ...)."""
+    available_from: int = 0
+    """The agent step at which the variable first appears in observations (transfer variant)."""
+
+
+@dataclass(frozen=True)
+class Goal:
+    """A qualitative value of a variable (§7.2.1), given to the agent at the start of a trial."""
+
+    variable: str
+    """A world variable, or its direction of change written ``"<name>.dot"``."""
+    value: str
+    """For ``.dot`` variables one of ``"+"``, ``"0"``, ``"-"``; for nominal a label."""
+
+
+def direction(previous: float, current: float, band: float = DOT_BAND) -> str:
+    """The qualitative direction of change between two consecutive values: "+", "0" or "-"."""
+    change = current - previous
+    if change > band:
+        return "+"
+    if change < -band:
+        return "-"
+    return "0"
+
+
+class Task(abc.ABC):
+    """One evaluation task of a world (§7.2.2).
+
+    A trial: ``obs = task.setup(world, rng)``; then, at each step, the agent pursues
+    ``task.goal(world, obs)``; a step earns ``success_reward`` when ``is_success`` holds (and the
+    trial ends), else ``step_cost``; the trial also ends early when ``is_failure`` holds or after
+    ``max_steps`` steps. A task may read ``world.previous_observation`` (the observation before the
+    latest step) to judge ``.dot`` goals.
+    """
+
+    name: str
+    step_cost: float = -0.01
+    success_reward: float = 9.99
+    max_steps: int = 300
+    hold_motors_at_zero_without_plan: bool = False
+    """During evaluation an agent with no plan sets its motors to 0 instead of random (§7.9.1)."""
+    episodic: bool = True
+    """False for tasks that count successes (pong volleys): a success earns ``success_reward``
+    and the trial goes on with a new goal until ``is_failure`` or ``max_steps``."""
+
+    @abc.abstractmethod
+    def setup(self, world: World, rng: np.random.Generator) -> dict[str, float]:
+        """Set up a trial (reset the world and place things) and return its first observation."""
+
+    @abc.abstractmethod
+    def goal(self, world: World, obs: Mapping[str, float]) -> Goal:
+        """The goal to pursue given the current observation."""
+
+    @abc.abstractmethod
+    def is_success(self, world: World, obs: Mapping[str, float]) -> bool:
+        """Whether the goal was achieved at the latest step."""
+
+    def is_failure(self, world: World, obs: Mapping[str, float]) -> bool:
+        """Whether the trial ends early (block hit the wrong way, out of reach, ball missed)."""
+        return False
+
+
+class World(abc.ABC):
+    """A continuous world seen through named variables.
+
+    Subclasses set ``name``, ``variables`` (motors first), ``substeps``, ``tasks`` and optionally
+    ``agent_options`` and ``constant_variables``, call :meth:`_init_variables`, and implement
+    :meth:`_reset` and :meth:`_step`, which return the full observation (every sensed variable,
+    available or not); this base class validates motors, counts steps and withholds variables
+    before their ``available_from`` step.
+    """
+
+    name: str
+    variables: tuple[VariableSpec, ...]
+    substeps: int
+    agent_options: Mapping[str, Any] = MappingProxyType({})
+    tasks: Mapping[str, Task]
+    constant_variables: ClassVar[tuple[str, ...]] = ()
+    """Sensed variables that are constant by design (e.g. pong's l_x, r_x, Table 7.3);
+    ``check_world`` exempts them from its no-constant-variable rule."""
+    rare_variables: ClassVar[tuple[str, ...]] = ()
+    """Nominal event variables that a short random-motor run may leave unchanged (core's T needs
+    the hand lowered onto the block's top, bang the block knocked off the table); ``check_world``
+    exempts them from its no-constant-variable rule, and physics tests show that they fire."""
+    step_count: int = 0
+    """Agent steps since the last reset."""
+    observation: dict[str, float]
+    """The latest observation (all sensed variables, including withheld ones)."""
+    previous_observation: dict[str, float]
+    """The observation before the latest step (equal to ``observation`` just after reset)."""
+    rng: np.random.Generator
+
+    # --- set-up helpers for subclasses ------------------------------------------------------
+
+    def _init_variables(self, variables: tuple[VariableSpec, ...]) -> None:
+        self.variables = variables
+        motors = [v for v in variables if v.kind is VarKind.MOTOR]
+        self._motor_names = tuple(v.name for v in motors)
+        self._motor_index = {name: i for i, name in enumerate(self._motor_names)}
+        self._motor_low = tuple(float(v.low) if v.low is not None else -math.inf for v in motors)
+        self._motor_high = tuple(float(v.high) if v.high is not None else math.inf for v in motors)
+        # Missing motors default to 0, or to the nearest value in range when 0 is not in range.
+        self._motor_default = tuple(
+            min(max(0.0, lo), hi) for lo, hi in zip(self._motor_low, self._motor_high, strict=True)
+        )
+        self._late = tuple(
+            sorted({v.available_from for v in variables if v.kind is not VarKind.MOTOR} - {0})
+        )
+        self._withheld: frozenset[str] = frozenset()
+        self.step_count = 0
+        self.observation = {}
+        self.previous_observation = {}
+        if not hasattr(self, "rng"):
+            self.rng = np.random.default_rng()
+
+    @property
+    def motor_names(self) -> tuple[str, ...]:
+        """The motor variables' names, in table order."""
+        return self._motor_names
+
+    def available_names(self, step: int | None = None) -> list[str]:
+        """The sensed variables present in observations at ``step`` (default: the current one)."""
+        step = self.step_count if step is None else step
+        return [
+            v.name
+            for v in self.variables
+            if v.kind is not VarKind.MOTOR and v.available_from <= step
+        ]
+
+    # --- the contract ---------------------------------------------------------------------
+
+    def reset(self, seed: int | None = None) -> dict[str, float]:
+        """Start over (seeding the world's generator) and return the first observation.
+
+        The observation maps each sensed variable (magnitude and nominal, not motors) available
+        at step 0 to a finite float.
+        """
+        self.rng = np.random.default_rng(seed)
+        self.step_count = 0
+        obs = self._reset()
+        self.previous_observation = obs
+        self.observation = obs
+        return self._publish(obs)
+
+    def step(self, motor: Mapping[str, float]) -> dict[str, float]:
+        """Apply the motor values for one agent step (``substeps`` physics steps).
+
+        ``motor`` maps motor names to values; missing motors are 0 (or the nearest in-range
+        value). Raises ValueError for an unknown motor name, a NaN or infinite value, or a value
+        outside the motor's range. Returns the observation after the step.
+        """
+        values = self._motor_values(motor)
+        self.step_count += 1
+        obs = self._step(values)
+        self.previous_observation = self.observation
+        self.observation = obs
+        return self._publish(obs)
+
+    def render_text(self, width: int = 60, height: int = 20) -> str:
+        """A cheap drawing of the world for the terminal UI (default: the variable values)."""
+        lines = [f"{self.name}  step {self.step_count}"]
+        lines += [f"{k:>10} {v: .3f}" for k, v in list(self.observation.items())[: height - 1]]
+        return "\n".join(line[:width] for line in lines)
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release resources (renderers, wrapped environments)."""
+
+    # --- for subclasses -------------------------------------------------------------------
+
+    @abc.abstractmethod
+    def _reset(self) -> dict[str, float]:
+        """Reset the physics using ``self.rng``; return the full observation."""
+
+    @abc.abstractmethod
+    def _step(self, motor: list[float]) -> dict[str, float]:
+        """Advance one agent step with motor values in table order; return the full observation."""
+
+    # --- internals ------------------------------------------------------------------------
+
+    def _motor_values(self, motor: Mapping[str, float]) -> list[float]:
+        values = list(self._motor_default)
+        index = self._motor_index
+        for name, raw in motor.items():
+            i = index.get(name)
+            if i is None:
+                raise ValueError(
+                    f"{self.name}: unknown motor {name!r}; the motors are {list(self._motor_names)}"
+                )
+            try:
+                value = float(raw)
+            except (TypeError, ValueError):
+                raise ValueError(f"{self.name}: motor {name!r} got a non-number {raw!r}") from None
+            if not math.isfinite(value):
+                raise ValueError(f"{self.name}: motor {name!r} got {value!r} (not finite)")
+            lo, hi = self._motor_low[i], self._motor_high[i]
+            if value < lo or value > hi:
+                raise ValueError(
+                    f"{self.name}: motor {name!r} got {value!r}, outside its range [{lo}, {hi}]"
+                )
+            values[i] = value
+        return values
+
+    def _publish(self, obs: dict[str, float]) -> dict[str, float]:
+        if self._late:
+            self._withheld = frozenset(
+                v.name for v in self.variables if v.available_from > self.step_count
+            )
+            if self._withheld:
+                return {k: v for k, v in obs.items() if k not in self._withheld}
+        return dict(obs)

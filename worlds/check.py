@@ -1,0 +1,168 @@
+"""``check_world``: does a world keep the contract of :mod:`worlds.base`?
+
+Like Gymnasium's env checker: run it on any world (registered or not). It raises AssertionError
+with a message naming the world and the broken rule.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+from worlds.base import Task, VariableSpec, VarKind, World
+
+__all__ = ["check_world", "random_motor"]
+
+
+def _require(condition: object, message: str) -> None:
+    """Like ``assert`` but not stripped by ``python -O``."""
+    if not condition:
+        raise AssertionError(message)
+
+
+def random_motor(world: World, rng: np.random.Generator) -> dict[str, float]:
+    """A uniformly random value for each motor within its range (the random policy)."""
+    out = {}
+    for v in world.variables:
+        if v.kind is VarKind.MOTOR:
+            assert v.low is not None
+            assert v.high is not None
+            out[v.name] = float(rng.uniform(v.low, v.high))
+    return out
+
+
+def _check_spec(world: World) -> None:
+    name = getattr(world, "name", None)
+    _require(isinstance(name, str) and name, f"{world!r}: name must be a non-empty str")
+    where = f"world {name!r}"
+    variables = world.variables
+    _require(isinstance(variables, tuple) and variables, f"{where}: variables must be a tuple")
+    names = [v.name for v in variables]
+    _require(len(set(names)) == len(names), f"{where}: duplicate variable names {names}")
+    seen_sensed = False
+    for v in variables:
+        _require(isinstance(v, VariableSpec), f"{where}: {v!r} is not a VariableSpec")
+        _require(isinstance(v.kind, VarKind), f"{where}: {v.name}: kind {v.kind!r}")
+        _require(v.meaning.strip(), f"{where}: {v.name}: empty meaning")
+        _require("." not in v.name, f"{where}: {v.name}: '.' is reserved for '.dot'")
+        if v.kind is VarKind.MOTOR:
+            _require(not seen_sensed, f"{where}: motor {v.name} comes after a sensed variable")
+            _require(v.low is not None and v.high is not None, f"{where}: motor {v.name}: no range")
+            _require(
+                math.isfinite(v.low) and math.isfinite(v.high) and v.low < v.high,
+                (f"{where}: motor {v.name}: bad range [{v.low}, {v.high}]"),
+            )
+            _require(v.available_from == 0, f"{where}: motor {v.name} must be available from 0")
+        else:
+            seen_sensed = True
+        if v.kind is VarKind.NOMINAL:
+            _require(len(v.values) >= 2, f"{where}: nominal {v.name} needs at least two labels")
+        _require(v.available_from >= 0, f"{where}: {v.name}: negative available_from")
+    _require(any(v.kind is VarKind.MOTOR for v in variables), f"{where}: no motor")
+    _require(isinstance(world.substeps, int) and world.substeps >= 1, f"{where}: substeps")
+    _require(isinstance(world.agent_options, Mapping), f"{where}: agent_options not a Mapping")
+    _require(isinstance(world.tasks, Mapping), f"{where}: tasks not a Mapping")
+    for key, task in world.tasks.items():
+        _require(isinstance(task, Task), f"{where}: task {key!r} is not a Task")
+        _require(task.name == key, f"{where}: task {key!r} is named {task.name!r}")
+        _require(task.max_steps > 0, f"{where}: task {key!r}: max_steps")
+    for c in (*world.constant_variables, *world.rare_variables):
+        _require(c in names, f"{where}: exempted variable {c!r} is not a variable")
+
+
+def _check_obs(world: World, obs: object, step: int) -> None:
+    where = f"world {world.name!r} at step {step}"
+    _require(isinstance(obs, dict), f"{where}: observation is {type(obs).__name__}, not dict")
+    expected = set(world.available_names(step))
+    got = set(obs)
+    _require(
+        got == expected,
+        (
+            f"{where}: observation keys differ from the available variables: "
+            f"missing {sorted(expected - got)}, unexpected {sorted(got - expected)}"
+        ),
+    )
+    specs = {v.name: v for v in world.variables}
+    for key, value in obs.items():
+        _require(isinstance(value, float), f"{where}: {key} is {type(value).__name__}, not float")
+        _require(math.isfinite(value), f"{where}: {key} = {value} is not finite")
+        spec = specs[key]
+        if spec.kind is VarKind.NOMINAL:
+            _require(
+                value == int(value) and 0 <= value < len(spec.values),
+                (f"{where}: nominal {key} = {value} is not an index into {spec.values}"),
+            )
+
+
+def _run(world: World, steps: int, seed: int) -> list[dict[str, float]]:
+    rng = np.random.default_rng(seed + 1)
+    obs = world.reset(seed=seed)
+    _require(world.step_count == 0, f"world {world.name!r}: step_count after reset is not 0")
+    _check_obs(world, obs, 0)
+    trace = [obs]
+    for t in range(1, steps + 1):
+        obs = world.step(random_motor(world, rng))
+        _require(
+            world.step_count == t, f"world {world.name!r}: step_count {world.step_count} != {t}"
+        )
+        _check_obs(world, obs, t)
+        trace.append(obs)
+    return trace
+
+
+def check_world(world: World, steps: int = 300, seed: int = 0) -> None:
+    """Check ``world`` against the contract; raise AssertionError naming what is wrong.
+
+    Checked: the variable table (names unique, motors first with finite ranges, nominal labels),
+    ``substeps``, ``tasks``, ``agent_options``; that ``reset`` and every ``step`` of a random-motor
+    run of ``steps`` steps return exactly the variables available at that step, as finite floats
+    (nominal ones as label indices); that the run is identical when repeated with the same seed;
+    that no sensed variable stays constant over the run, except the world's declared
+    ``constant_variables`` (which must be constant) and ``rare_variables`` (rare events); and
+    that bad motor input raises ValueError.
+    """
+    _check_spec(world)
+    first = _run(world, steps, seed)
+    second = _run(world, steps, seed)
+    for t, (a, b) in enumerate(zip(first, second, strict=True)):
+        _require(
+            a == b,
+            (
+                f"world {world.name!r}: not deterministic for seed {seed}: step {t} differs: "
+                f"{ {k: (a[k], b.get(k)) for k in a if a[k] != b.get(k)} }"
+            ),
+        )
+    seen: dict[str, set[float]] = {}
+    for obs in first:
+        for key, value in obs.items():
+            seen.setdefault(key, set()).add(value)
+    for key, values in seen.items():
+        if key in world.constant_variables:
+            _require(
+                len(values) == 1, f"world {world.name!r}: {key} is declared constant but varies"
+            )
+        elif key not in world.rare_variables:
+            _require(
+                len(values) > 1,
+                (
+                    f"world {world.name!r}: {key} stayed at {next(iter(values))} for {steps} "
+                    f"random-motor steps (seed {seed})"
+                ),
+            )
+    motor = world.motor_names[0]
+    spec = next(v for v in world.variables if v.name == motor)
+    assert spec.high is not None
+    for bad, fragment in (
+        ({"no_such_motor": 0.0}, "no_such_motor"),
+        ({motor: math.nan}, motor),
+        ({motor: spec.high + abs(spec.high) + 1.0}, motor),
+    ):
+        try:
+            world.step(bad)
+        except ValueError as error:
+            message = str(error)
+        else:
+            raise AssertionError(f"world {world.name!r}: step({bad}) did not raise ValueError")
+        _require(fragment in message, f"world {world.name!r}: unclear error {message}")

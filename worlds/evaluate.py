@@ -1,0 +1,96 @@
+"""Evaluation trials (§7.2.1): a task's trials run with a policy; here the random-motor baseline.
+
+``run_random_trials(world, task_name, n_trials, seed)`` runs ``n_trials`` trials of a task with
+a policy that draws every motor uniformly from its range at each step (or holds the motors at 0
+when the task says an agent without a plan does so, §7.9.1), and reports the mean reward. The
+acting side will add QLAP policies through :func:`run_trials`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from worlds.base import Goal, Task, VarKind, World
+from worlds.check import random_motor
+
+__all__ = ["Policy", "run_random_trials", "run_trials"]
+
+#: A policy maps (world, observation, goal, rng) to motor values.
+Policy = Callable[[World, Mapping[str, float], Goal, np.random.Generator], Mapping[str, float]]
+
+
+def _random_policy(task: Task) -> Policy:
+    def policy(
+        world: World, obs: Mapping[str, float], goal: Goal, rng: np.random.Generator
+    ) -> Mapping[str, float]:
+        if task.hold_motors_at_zero_without_plan:
+            return {v.name: 0.0 for v in world.variables if v.kind is VarKind.MOTOR}
+        return random_motor(world, rng)
+
+    return policy
+
+
+def run_trials(
+    world: World, task_name: str, n_trials: int, seed: int, policy: Policy
+) -> dict[str, Any]:
+    """Run ``n_trials`` trials of ``world.tasks[task_name]`` with ``policy``.
+
+    Returns ``mean_reward``, ``std_reward``, ``rewards`` (per trial), ``successes`` (number of
+    successful steps: trials that reached the goal, or volleys for a non-episodic task),
+    ``failures`` (trials ended early), ``timeouts`` and ``mean_steps``.
+    """
+    if task_name not in world.tasks:
+        raise ValueError(f"{world.name} has no task {task_name!r}; tasks: {sorted(world.tasks)}")
+    task = world.tasks[task_name]
+    rng = np.random.default_rng(seed)
+    rewards: list[float] = []
+    steps_taken: list[int] = []
+    successes = failures = timeouts = 0
+    for _ in range(n_trials):
+        obs = task.setup(world, rng)
+        total = 0.0
+        steps = 0
+        ended = False
+        while steps < task.max_steps:
+            goal = task.goal(world, obs)
+            obs = world.step(policy(world, obs, goal, rng))
+            steps += 1
+            if task.is_success(world, obs):
+                total += task.success_reward
+                successes += 1
+                if task.episodic:
+                    ended = True
+                    break
+                continue
+            total += task.step_cost
+            if task.is_failure(world, obs):
+                failures += 1
+                ended = True
+                break
+        if not ended:
+            timeouts += 1
+        rewards.append(total)
+        steps_taken.append(steps)
+    return {
+        "task": task_name,
+        "world": world.name,
+        "n_trials": n_trials,
+        "mean_reward": float(np.mean(rewards)) if rewards else 0.0,
+        "std_reward": float(np.std(rewards)) if rewards else 0.0,
+        "rewards": rewards,
+        "successes": successes,
+        "failures": failures,
+        "timeouts": timeouts,
+        "mean_steps": float(np.mean(steps_taken)) if steps_taken else 0.0,
+    }
+
+
+def run_random_trials(world: World, task_name: str, n_trials: int, seed: int) -> dict[str, Any]:
+    """The random-motor baseline of a task (see the module docstring)."""
+    task = world.tasks.get(task_name)
+    if task is None:
+        raise ValueError(f"{world.name} has no task {task_name!r}; tasks: {sorted(world.tasks)}")
+    return run_trials(world, task_name, n_trials, seed, _random_policy(task))

@@ -1,0 +1,185 @@
+"""Pong (§7.10, Table 7.3): two paddles moving together in y, one ball; no physics engine.
+
+Field x ∈ [0, 20], y ∈ [0, 12] (+x right, +y up). The left paddle's face is at l_x = 1, the right
+paddle's at r_x = 19 (constant, as in Table 7.3); both paddles are 3 long and share one y. The
+motor u ∈ [−1, 1] is three-valued: u < −0.05 moves the paddles down, u > 0.05 up (0.5 units a
+step), otherwise they stay (the dead band is the agent's initial zero landmark on motors,
+Table 8.1). The ball moves 0.4 units a step in x and reflects off the top and bottom walls and
+off a paddle it meets (its y speed bent by where it hits the paddle). When it passes a paddle the
+volley is over: ball and paddles start again in the middle (during evaluation the paddles start
+at a random place, §7.10.1).
+
+The world declares ``agent_options = {"k_fixed": 6, "nrp": True}``: the agent must fix its
+window k at 6 and allow plans without a reliable plan for the antecedent event (§7.10.1).
+"""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from worlds.base import Goal, Task, VariableSpec, VarKind, World
+
+__all__ = ["PongVolley", "PongWorld", "make_pong"]
+
+WIDTH, HEIGHT = 20.0, 12.0
+L_X, R_X = 1.0, 19.0
+PADDLE_HALF = 1.5
+PADDLE_SPEED = 0.5
+BALL_SPEED_X = 0.4
+BALL_SPEED_Y = (0.1, 0.35)
+MAX_SPEED_Y = 0.5
+BALL_RADIUS = 0.3
+DEAD_BAND = 0.05
+
+_M = VarKind.MAGNITUDE
+VARIABLES = (
+    VariableSpec("u", VarKind.MOTOR, "paddles: < -0.05 down, > 0.05 up, else steady", -1.0, 1.0),
+    VariableSpec("l_x", _M, "left paddle's face x (constant 1)"),
+    VariableSpec("l_y", _M, "left paddle centre y; + is up"),
+    VariableSpec("r_x", _M, "right paddle's face x (constant 19)"),
+    VariableSpec("r_y", _M, "right paddle centre y; + is up"),
+    VariableSpec("b_x", _M, "ball centre x; + is right"),
+    VariableSpec("b_y", _M, "ball centre y; + is up"),
+    VariableSpec("cl_x", _M, "left paddle x minus ball x (c^l_x); < 0 while the ball is in play"),
+    VariableSpec("cl_y", _M, "left paddle y minus ball y (c^l_y); + when the paddle is above"),
+    VariableSpec("cr_x", _M, "right paddle x minus ball x (c^r_x); > 0 while the ball is in play"),
+    VariableSpec("cr_y", _M, "right paddle y minus ball y (c^r_y); + when the paddle is above"),
+)
+
+
+class PongVolley(Task):
+    """Keep the volley going (§7.10.1): make the ball go left when it goes right, and vice versa.
+
+    Each paddle hit earns 1 and the trial goes on (``episodic = False``); it ends when the ball
+    is missed or after ``max_steps``. The mean reward is the mean number of volleys per trial.
+    """
+
+    name = "pong_volley"
+    step_cost = 0.0
+    success_reward = 1.0
+    max_steps = 2000
+    episodic = False
+
+    def setup(self, world: World, rng: np.random.Generator) -> dict[str, float]:
+        w: PongWorld = world  # type: ignore[assignment]
+        w.random_paddles = True
+        return w.reset(seed=int(rng.integers(2**63 - 1)))
+
+    def goal(self, world: World, obs: Any) -> Goal:
+        going_right = world.ball_v[0] > 0  # type: ignore[attr-defined]
+        return Goal("b_x.dot", "-" if going_right else "+")
+
+    def is_success(self, world: World, obs: Any) -> bool:
+        return world.hit  # type: ignore[attr-defined,no-any-return]
+
+    def is_failure(self, world: World, obs: Any) -> bool:
+        return world.missed  # type: ignore[attr-defined,no-any-return]
+
+
+class PongWorld(World):
+    """Pong; see the module docstring."""
+
+    name = "pong"
+    substeps = 1
+    constant_variables = ("l_x", "r_x")
+
+    def __init__(self, random_paddles: bool = False) -> None:
+        self._init_variables(VARIABLES)
+        self.tasks = MappingProxyType({"pong_volley": PongVolley()})
+        self.agent_options = MappingProxyType({"k_fixed": 6, "nrp": True})
+        self.random_paddles = random_paddles
+        self.reset()
+
+    def _new_volley(self) -> None:
+        rng = self.rng
+        if self.random_paddles:
+            self.paddle_y = float(rng.uniform(PADDLE_HALF, HEIGHT - PADDLE_HALF))
+        else:
+            self.paddle_y = HEIGHT / 2
+        self.ball = [WIDTH / 2, HEIGHT / 2]
+        vx = BALL_SPEED_X if rng.random() < 0.5 else -BALL_SPEED_X
+        vy = float(rng.uniform(*BALL_SPEED_Y)) * (1.0 if rng.random() < 0.5 else -1.0)
+        self.ball_v = [vx, vy]
+
+    def _reset(self) -> dict[str, float]:
+        self.hit = False
+        self.missed = False
+        self.volleys = 0
+        self._new_volley()
+        return self._observe()
+
+    def _step(self, motor: list[float]) -> dict[str, float]:
+        self.hit = False
+        if self.missed:
+            self.missed = False
+            self._new_volley()
+        u = motor[0]
+        move = PADDLE_SPEED if u > DEAD_BAND else (-PADDLE_SPEED if u < -DEAD_BAND else 0.0)
+        self.paddle_y = min(max(self.paddle_y + move, PADDLE_HALF), HEIGHT - PADDLE_HALF)
+        (x, y), (vx, vy) = self.ball, self.ball_v
+        x, y = x + vx, y + vy
+        if y < BALL_RADIUS:
+            y, vy = 2 * BALL_RADIUS - y, -vy
+        elif y > HEIGHT - BALL_RADIUS:
+            y, vy = 2 * (HEIGHT - BALL_RADIUS) - y, -vy
+        face_l, face_r = L_X + BALL_RADIUS, R_X - BALL_RADIUS
+        crossed_l = vx < 0 and x <= face_l < x - vx
+        crossed_r = vx > 0 and x - vx < face_r <= x
+        if crossed_l or crossed_r:
+            offset = y - self.paddle_y
+            if abs(offset) <= PADDLE_HALF + BALL_RADIUS:
+                face = face_l if crossed_l else face_r
+                x, vx = 2 * face - x, -vx
+                vy = max(-MAX_SPEED_Y, min(MAX_SPEED_Y, vy + 0.15 * offset / PADDLE_HALF))
+                self.hit = True
+                self.volleys += 1
+        if x < 0.0 or x > WIDTH:
+            self.missed = True
+        self.ball, self.ball_v = [x, y], [vx, vy]
+        return self._observe()
+
+    def _observe(self) -> dict[str, float]:
+        x, y = self.ball
+        p = self.paddle_y
+        return {
+            "l_x": L_X,
+            "l_y": p,
+            "r_x": R_X,
+            "r_y": p,
+            "b_x": x,
+            "b_y": y,
+            "cl_x": L_X - x,
+            "cl_y": p - y,
+            "cr_x": R_X - x,
+            "cr_y": p - y,
+        }
+
+    def render_text(self, width: int = 60, height: int = 20) -> str:
+        """The field: '|' paddles, 'o' the ball."""
+        rows = max(height - 2, 4)
+        grid = [[" "] * width for _ in range(rows)]
+
+        def cell(x: float, y: float) -> tuple[int, int]:
+            r = int((HEIGHT - y) / HEIGHT * (rows - 1) + 0.5)
+            c = int(x / WIDTH * (width - 1) + 0.5)
+            return min(max(r, 0), rows - 1), min(max(c, 0), width - 1)
+
+        for px in (L_X, R_X):
+            for k in range(-3, 4):
+                r, c = cell(px, self.paddle_y + k * PADDLE_HALF / 3)
+                grid[r][c] = "|"
+        r, c = cell(*self.ball)
+        grid[r][c] = "o"
+        status = f"pong t={self.step_count} volleys={self.volleys}"
+        border = "-" * width
+        return "\n".join([status[:width], border, *("".join(row) for row in grid)])
+
+
+def make_pong(variant: str | None = None, option: str | None = None, **options: Any) -> PongWorld:
+    """Registry factory for ``pong`` (option: ``random_paddles=True``)."""
+    if variant or option:
+        raise ValueError(f"pong has no variants, got {variant!r} {option!r}")
+    return PongWorld(**options)
