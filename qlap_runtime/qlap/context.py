@@ -59,14 +59,14 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
         options = [v for v in candidates if v not in ctx]
         if not options:
             break
-        scored = [(v, evaluate(tuple(sorted(ctx + (v,))))) for v in options]
+        scored = [(v, evaluate(tuple(sorted((*ctx, v))))) for v in options]
         if r1.reliable or params.ablations.entropy_only:
             v, r2 = min(scored, key=lambda p: (p[1].entropy, p[0]))
         else:
             v, r2 = max(scored, key=lambda p: (-1.0 if p[1].brel is None else p[1].brel, -p[0]))
         if not is_model_improvement(r1, r2, params):
             break
-        ctx = tuple(sorted(ctx + (v,)))
+        ctx = tuple(sorted((*ctx, v)))
         r1 = r2
     if tuple(sorted(current)) != ctx and is_model_improvement(r, r1, params):
         return ctx

@@ -36,35 +36,38 @@ class PairStatistics:
         self.soon_given = np.zeros((n, c), dtype=np.int64)  # E1 occurrences followed soon by E2
         self.soon_steps = np.zeros(c, dtype=np.int64)       # steps t with E2 in [t, t+k)
         self.last_cons = np.full(c, -(10**12), dtype=np.int64)
-        self.window: deque[tuple[int, np.ndarray]] = deque()
+        # The events of the last k steps, flattened: their step and id.
+        self.win_t = np.zeros(0, dtype=np.int64)
+        self.win_ids = np.zeros(0, dtype=np.int64)
         self.steps = 0
         self.first_step: int | None = None
 
     def update(self, step: int, event_ids: np.ndarray) -> None:
-        """Account for the events of one step."""
+        """Account for the events of one step (vectorised over the window)."""
         if self.first_step is None:
             self.first_step = step
         k = self.k
-        self.window.append((step, event_ids))
-        cons = self.index.cons_of_event[event_ids] if len(event_ids) else event_ids
-        cons = cons[cons >= 0] if len(event_ids) else cons
-        if len(cons):
-            rows: list[np.ndarray] = []
-            cols: list[np.ndarray] = []
-            for c in cons:
-                lo = max(int(self.last_cons[c]) + 1, step - k + 1, self.first_step)
-                for t, ids in self.window:
-                    if t >= lo and len(ids):
-                        rows.append(ids)
-                        cols.append(np.full(len(ids), c))
-                self.soon_steps[c] += step - lo + 1
-                self.last_cons[c] = step
-            if rows:
-                np.add.at(self.soon_given, (np.concatenate(rows), np.concatenate(cols)), 1)
-        while self.window and self.window[0][0] <= step - k:
-            _, ids = self.window.popleft()
-            if len(ids):
-                np.add.at(self.occurrences, ids, 1)
+        # Occurrences whose window [t, t+k) closed before this step become trials.
+        if len(self.win_t) and self.win_t[0] <= step - k:
+            cut = int(np.searchsorted(self.win_t, step - k, side="right"))
+            np.add.at(self.occurrences, self.win_ids[:cut], 1)
+            self.win_t, self.win_ids = self.win_t[cut:], self.win_ids[cut:]
+        if len(event_ids):
+            self.win_t = np.concatenate([self.win_t, np.full(len(event_ids), step)])
+            self.win_ids = np.concatenate([self.win_ids, event_ids])
+            cons = self.index.cons_of_event[event_ids]
+            cons = cons[cons >= 0]
+            if len(cons):
+                lo = np.maximum(np.maximum(self.last_cons[cons] + 1, step - k + 1),
+                                self.first_step)
+                self.soon_steps[cons] += step - lo + 1
+                self.last_cons[cons] = step
+                # E1 occurrences at t >= lo(c) are credited once for c.
+                start = np.searchsorted(self.win_t, lo, side="left")
+                counts = len(self.win_t) - start
+                rows = np.concatenate([self.win_ids[s:] for s in start.tolist()])
+                cols = np.repeat(cons, counts)
+                np.add.at(self.soon_given, (rows, cols), 1)
         self.steps += 1
 
     def resolved_steps(self) -> int:
@@ -105,18 +108,17 @@ class PairStatistics:
         return out
 
     def to_state(self) -> tuple[dict, dict[str, np.ndarray]]:
-        win = [[t, ids.tolist()] for t, ids in self.window]
-        meta = {"k": self.k, "steps": self.steps, "first_step": self.first_step, "window": win}
+        meta = {"k": self.k, "steps": self.steps, "first_step": self.first_step}
         arrays = {"occurrences": self.occurrences, "soon_given": self.soon_given,
-                  "soon_steps": self.soon_steps, "last_cons": self.last_cons}
+                  "soon_steps": self.soon_steps, "last_cons": self.last_cons,
+                  "win_t": self.win_t, "win_ids": self.win_ids}
         return meta, arrays
 
     def load_state(self, meta: dict, arrays: dict[str, np.ndarray]) -> None:
         self.k = int(meta["k"])
         self.steps = int(meta["steps"])
         self.first_step = meta["first_step"]
-        self.window = deque((int(t), np.asarray(ids, dtype=np.int64)) for t, ids in meta["window"])
-        for name in ("occurrences", "soon_given", "soon_steps", "last_cons"):
+        for name in ("occurrences", "soon_given", "soon_steps", "last_cons", "win_t", "win_ids"):
             setattr(self, name, np.asarray(arrays[name], dtype=np.int64).copy())
 
 
@@ -154,10 +156,11 @@ class WindowLearner:
 
     def __init__(self, motor_vars: list[int], history: int) -> None:
         self.motor_vars = list(motor_vars)
-        self.open: dict[int, tuple[int, int, set[int]]] = {}   # motor var -> (E1 id, t0, credited)
-        self.trials: dict[int, int] = {}                          # E1 id -> episodes
-        self.success: dict[tuple[int, int], list[int]] = {}      # (E1, E2) -> [successes, delay sum]
-        self.cons_times: dict[int, deque[int]] = {}               # E2 id -> occurrence times
+        # motor var -> (E1 id, start step, consequents already credited)
+        self.open: dict[int, tuple[int, int, set[int]]] = {}
+        self.trials: dict[int, int] = {}                       # E1 id -> episodes
+        self.success: dict[tuple[int, int], list[int]] = {}   # (E1, E2) -> [successes, delays]
+        self.cons_times: dict[int, deque[int]] = {}            # E2 id -> occurrence times
         self.history = history
         self.first_step: int | None = None
         self.last_step = -1
@@ -194,7 +197,7 @@ class WindowLearner:
             if n < min_points or s == 0:
                 continue
             s_eff = min(s, n)
-            k_r = max(1, int(round(dsum / s)))
+            k_r = max(1, round(dsum / s))
             base = soon_fraction(np.fromiter(self.cons_times.get(e2, ()), dtype=np.int64), k_r,
                                  max(self.first_step, self.last_step - self.history + 1),
                                  self.last_step)

@@ -121,7 +121,8 @@ def context_cells(qs: list[np.ndarray], sizes: list[int]) -> np.ndarray:
     return np.where(bad, -1, cell)
 
 
-def counts_by_cell(cells: np.ndarray, ok: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+def counts_by_cell(cells: np.ndarray, ok: np.ndarray,
+                   n_cells: int) -> tuple[np.ndarray, np.ndarray]:
     """Success and failure counts per cell (rows with cell −1 are ignored)."""
     m = cells >= 0
     s = np.bincount(cells[m], weights=ok[m].astype(float), minlength=n_cells)

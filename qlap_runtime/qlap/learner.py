@@ -64,13 +64,16 @@ class ModelLearner:
         Raises :class:`~.perception.InvalidObservation` (a ValueError naming the variable) for
         NaN/infinite values or unknown names, leaving the learner unchanged.
         """
-        return self.observe_vector(step, self.perception.vector(obs))
+        return self._observe(step, self.perception.vector(obs))
 
     def observe_vector(self, step: int, x: np.ndarray) -> Percept:
         """:meth:`observe` with the real values already ordered by variable index."""
+        return self._observe(step, np.array(x, dtype=float))
+
+    def _observe(self, step: int, x: np.ndarray) -> Percept:
         if step <= self.step:
             raise ValueError(f"steps must increase: got {step} after {self.step}")
-        p = self.perception.perceive(step, x)
+        p = self.perception.perceive(step, x, copy=False)
         self.step = step
         self.pairs.update(step, p.event_ids)
         if not self.k_learned:
@@ -278,7 +281,7 @@ class ModelLearner:
                                           p.beta_confidence)
             if not found:
                 return
-            k = max(1, int(round(float(np.mean([kr for _, _, kr in found])))))
+            k = max(1, round(float(np.mean([kr for _, _, kr in found]))))
             self._do(("set_k", k))
             candidates = [(index.decode(e1), index.decode(e2)) for e1, e2, _ in found]
         else:
@@ -382,7 +385,6 @@ class ModelLearner:
         if len(hx) < 2:
             return
         cands: list[tuple[float, int, int, int, float, float]] = []  # Δ, event, v, q, lb, ub
-        prev_rows = np.arange(len(hx) - 1)
         events: list[tuple[int, int, np.ndarray]] = []
         for c in self.table.of_kind(Kind.CHANGE):
             for val in (CHANGE_MINUS, CHANGE_PLUS):
@@ -568,6 +570,7 @@ class ModelLearner:
         dbn = self.dbns.pop(dbn_id, None)
         if dbn is None:
             return
+        self._pairs_of.discard((dbn.antecedent, dbn.consequent))
         for entry in dbn.pending:
             entry[2] = True
         dbn.pending.clear()
@@ -602,6 +605,8 @@ class ModelLearner:
         for d_id in sorted(self.dbns):
             dbn = self.dbns[d_id]
             if dbn.kind != CHANGE:
+                if var in dbn.context:
+                    self._recount(dbn)
                 continue
             a = dbn.antecedent
             if a.var == var:
@@ -684,10 +689,11 @@ class ModelLearner:
         ss[cmap] = ps.soon_steps
         lc = np.full(new.n_cons, -(10**12), dtype=np.int64)
         lc[cmap] = ps.last_cons
-        window = deque((t, emap[ids][emap[ids] >= 0]) for t, ids in ps.window)
+        wids = emap[ps.win_ids]
+        keep = wids >= 0
         ps.index = new
         ps.occurrences, ps.soon_given, ps.soon_steps, ps.last_cons = occ, sg, ss, lc
-        ps.window = window
+        ps.win_t, ps.win_ids = ps.win_t[keep], wids[keep]
 
     # ------------------------------------------------------------------------------------------
     # reading the knowledge

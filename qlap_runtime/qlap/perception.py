@@ -123,6 +123,7 @@ class Perception:
                                      dtype=int)
         self._change_and_nominal = np.array(
             [v.index for v in table if v.kind in (Kind.CHANGE, Kind.NOMINAL)], dtype=int)
+        self._all_seen = False
         self._is_mag = np.array([v.kind is Kind.MAGNITUDE for v in table])
         self._real_idx = np.array([v.index for v in table
                                    if v.kind in (Kind.MOTOR, Kind.MAGNITUDE)], dtype=int)
@@ -135,11 +136,6 @@ class Perception:
         self.hist_q = np.full((cap, n), -1, dtype=np.int16)
         self.hist_len = 0
         self.hist_head = 0
-        # Running average change per variable (§4.4.2 bin size); sums over the whole run.
-        self.change_sum = np.zeros(n)
-        self.change_count = np.zeros(n, dtype=np.int64)
-        # How often each consequent event is satisfied (targeted learning, §6.3).
-        self.satisfied = np.zeros(self.events.n_cons, dtype=np.int64)
         self.steps_seen = 0
 
     # -- landmarks --------------------------------------------------------------------------
@@ -157,6 +153,9 @@ class Perception:
                 self._lb[r, c] = lm.lb
                 self._ub[r, c] = lm.ub
         self._rows = np.arange(len(idx))
+        self._maxl = maxl
+        self._lb_flat = self._lb.ravel()
+        self._row_off = self._rows * maxl
         sizes = [len(v.values) if v.kind is Kind.NOMINAL else self.spaces[v.index].size
                  for v in self.table]
         self.events = EventIndex(self.table, sizes)
@@ -174,6 +173,17 @@ class Perception:
         if not math.isnan(self.prev_x[var]):
             self.prev_q[var] = self.spaces[var].value_of(float(self.prev_x[var]))
         return split
+
+    def _quantize_row(self, x: np.ndarray) -> np.ndarray:
+        """Fast path of :meth:`quantize` for one finite-or-NaN row (the per-step work)."""
+        xo = x[self._ordered_idx]
+        j = (self._ub < xo[:, None]).sum(axis=1)
+        lbj = self._lb_flat[self._row_off + np.minimum(j, self._maxl - 1)]
+        q = np.empty(len(x), dtype=np.int64)
+        q[self._ordered_idx] = 2 * j + ((j < self._nlm) & (xo >= lbj))
+        if len(self._nominal_idx):
+            q[self._nominal_idx] = x[self._nominal_idx]
+        return q
 
     def quantize(self, x: np.ndarray) -> np.ndarray:
         """Qualitative values of a full real vector (or a matrix of them, rows = steps)."""
@@ -206,6 +216,12 @@ class Perception:
         """Real values of the world variables (derivative slots left NaN), validated."""
         n = len(self.table)
         x = np.full(n, np.nan)
+        if len(obs) == len(self._world_names):
+            try:
+                x[self._world_idx] = [obs[k] for k in self._world_names]
+                return x
+            except (KeyError, TypeError, ValueError):
+                x[:] = np.nan
         by_name = self.table.by_name
         for name, value in obs.items():
             v = by_name.get(name)
@@ -220,43 +236,33 @@ class Perception:
                     f"variable {name!r} has non-numeric value {value!r}") from None
         return x
 
-    def perceive(self, step: int, x: np.ndarray) -> Percept:
+    def perceive(self, step: int, x: np.ndarray, copy: bool = True) -> Percept:
         """Turn the real vector of one step into qualitative values and events.
 
         Raises :class:`InvalidObservation` naming the variable if an available value is NaN or
         infinite, or a nominal value is not one of its indices; the state is then unchanged.
         """
-        x = np.array(x, dtype=float)
-        self._validate(step, x)
+        x = np.array(x, dtype=float) if copy else x
+        finite = self._validate(step, x)
         # Direction of change per agent step (§3.1): ṽ(t) − ṽ(t−1).
         x[self._change_idx] = x[self._change_src] - self.prev_x[self._change_src]
-        q = self.quantize(x)
+        if finite and self._all_seen:
+            q = self._quantize_row(x)
+        else:
+            q = self.quantize(x)
+            self._all_seen = bool((q >= 0).all())
         prev = self.prev_q
-        changed = (q != prev) & (q >= 0) & (prev >= 0)
-        ev_vars = np.flatnonzero(changed)
-        events: list[Event] = []
-        ids = np.empty(len(ev_vars), dtype=np.int64)
-        off, mult = self.events.offset, self.events.mult
-        for k, var in enumerate(ev_vars):
-            val = int(q[var])
-            if self._is_mag[var]:
-                d = 1 if val > prev[var] else -1
-                events.append(Event(int(var), val, d))
-                ids[k] = off[var] + 2 * val + (0 if d > 0 else 1)
-            else:
-                events.append(Event(int(var), val, 0))
-                ids[k] = off[var] + val * mult[var]
-        # Running statistics for the landmark searches.
-        ri = self._real_idx
-        d = np.abs(x[ri] - self.prev_x[ri])
-        moved = d > self.params.change_epsilon
-        self.change_sum[ri[moved]] += d[moved]
-        self.change_count[ri[moved]] += 1
-        cons = self.events.cons_of_event
-        sat_ev = off[self._change_and_nominal] + q[self._change_and_nominal] * mult[self._change_and_nominal]
-        valid = q[self._change_and_nominal] >= 0
-        c = cons[sat_ev[valid]]
-        self.satisfied[c[c >= 0]] += 1
+        ev_vars = ((q != prev) & (q >= 0) & (prev >= 0)).nonzero()[0]
+        if len(ev_vars):
+            qv = q[ev_vars]
+            down = self._is_mag[ev_vars] & (qv < prev[ev_vars])
+            up = self._is_mag[ev_vars] & ~down
+            ids = self.events.offset[ev_vars] + qv * self.events.mult[ev_vars] + down
+            dirs = up.astype(np.int64) - down
+            events = tuple(map(Event, ev_vars.tolist(), qv.tolist(), dirs.tolist()))
+        else:
+            ids = ev_vars
+            events = ()
         self.steps_seen += 1
         cap = self.hist_x.shape[0]
         self.hist_x[self.hist_head] = x
@@ -265,24 +271,31 @@ class Perception:
         self.hist_len = min(self.hist_len + 1, cap)
         self.prev_x = x
         self.prev_q = q
-        return Percept(step, x, q, tuple(events), ids)
+        return Percept(step, x, q, events, ids)
 
-    def _validate(self, step: int, x: np.ndarray) -> None:
+    def _validate(self, step: int, x: np.ndarray) -> bool:
+        """Check one row; returns True when every world variable is present and finite."""
         world = x[self._world_idx]
-        bad = ~np.isfinite(world)
-        if bad.any():
-            for i in self._world_idx[bad]:
+        finite = bool(np.isfinite(world).all())
+        if not finite:
+            for i in self._world_idx[~np.isfinite(world)]:
                 v = self.table[i]
                 if np.isnan(x[i]) and step < v.available_from:
                     continue
                 raise InvalidObservation(
                     f"variable {v.name!r} has non-finite value {x[i]!r} at step {step}")
-        for i, size in zip(self._nominal_idx, self._nominal_size, strict=True):
-            val = x[i]
-            if not np.isnan(val) and (val != int(val) or not 0 <= val < size):
+        if len(self._nominal_idx) and not np.array_equal(x[self._nominal_idx],
+                                                         self.prev_x[self._nominal_idx]):
+            vals = x[self._nominal_idx]
+            ok = np.isnan(vals) | ((vals == np.floor(vals)) & (vals >= 0)
+                                   & (vals < self._nominal_size))
+            if not ok.all():
+                k = int(np.flatnonzero(~ok)[0])
+                v = self.table[int(self._nominal_idx[k])]
                 raise InvalidObservation(
-                    f"nominal variable {self.table[i].name!r} has value {val!r}; expected an "
-                    f"index in 0..{size - 1} ({', '.join(self.table[i].values)})")
+                    f"nominal variable {v.name!r} has value {vals[k]!r}; expected an index in "
+                    f"0..{len(v.values) - 1} ({', '.join(v.values)})")
+        return finite
 
     def history(self) -> tuple[np.ndarray, np.ndarray]:
         """The stored real and qualitative histories in time order (oldest first)."""
@@ -293,10 +306,21 @@ class Perception:
         return self.hist_x[order], self.hist_q[order]
 
     def bin_size(self, var: int) -> float:
-        """Bin size for ṽ: twice the average change (§4.4.2); 0 if it never changed."""
-        n = self.change_count[var]
-        return 2.0 * self.change_sum[var] / n if n else 0.0
+        """Bin size for ṽ: twice the average change (§4.4.2) over the stored history; a change
+        counts when |ṽ(t) − ṽ(t−1)| > 0.001. 0 if it never changed."""
+        hx, _ = self.history()
+        d = np.abs(np.diff(hx[:, var]))
+        d = d[d > self.params.change_epsilon]
+        return 2.0 * float(d.mean()) if len(d) else 0.0
 
     def satisfied_fraction(self) -> np.ndarray:
-        """Fraction of steps each consequent event was satisfied (§6.3 "sufficiently rare")."""
-        return self.satisfied / max(1, self.steps_seen)
+        """Fraction of the stored history's steps in which each consequent event was satisfied
+        (§6.3 "sufficiently rare")."""
+        _, hq = self.history()
+        out = np.zeros(self.events.n_cons)
+        if not len(hq):
+            return out
+        for c in range(self.events.n_cons):
+            e = self.events.decode(int(self.events.event_of_cons[c]))
+            out[c] = float(np.mean(hq[:, e.var] == e.value))
+        return out

@@ -18,7 +18,7 @@ CHANGE_LABELS = ("-", "0", "+")
 """Labels of the three values [-], [0], [+] of a direction-of-change variable (§3.1)."""
 
 
-class Kind(str, enum.Enum):
+class Kind(enum.StrEnum):
     """The kinds of qualitative variable (Table 3.1 and Appendix A)."""
 
     MOTOR = "motor"

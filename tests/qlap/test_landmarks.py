@@ -1,0 +1,74 @@
+"""Fayyad–Irani cut, the candidate test and range rule (§4.4.1), event bins (§4.4.2)."""
+
+import numpy as np
+import pytest
+
+from qlap_runtime.qlap.landmarks import (
+    Cut,
+    EventBinner,
+    best_cut,
+    candidate_range,
+    is_candidate,
+)
+
+
+def test_best_cut_on_a_small_labelled_set():
+    values = np.array([0.1, 0.2, 0.25, 0.35, 0.5, 0.9])
+    labels = np.array([0, 0, 0, 1, 1, 1])
+    cut = best_cut(values, labels)
+    assert cut == Cut(1.0, 0.25, 0.35)          # pure split: G = H(S) = 1
+
+
+def test_best_cut_gain_hand_computed_and_min_gap():
+    # labels 0 1 0 1 1 1 over 1..6: best after the 3rd value: H(S)=0.918296,
+    # left {0,1,0}: H=0.918296 (w .5), right pure: G = 0.918296 - 0.459148 = 0.459148
+    values = np.arange(1.0, 7.0)
+    cut = best_cut(values, np.array([0, 1, 0, 1, 1, 1]))
+    assert cut is not None and cut.lb == 3.0 and cut.ub == 4.0
+    assert cut.gain == pytest.approx(0.459148, abs=1e-6)
+    # gaps of 0.0005 are not cut points (ub - lb > 0.001 required)
+    assert best_cut(np.array([1.0, 1.0005, 1.001]), np.array([0, 1, 1])) is None
+
+
+def test_candidate_test_and_range_rule():
+    assert is_candidate(0.5, 0.4, 0.3)               # 0.5 > 0.3 and 0.2 > 0.15
+    assert not is_candidate(0.5, 0.29, 0.3)          # 0.145 < 0.15
+    assert not is_candidate(0.29, 1.0, 0.3)
+    cut = Cut(0.5, 9.8, 10.0)
+    assert candidate_range(cut, 0.0, 10.0, 0.5) == (10.0, 10.0)      # near max: [ub, max]
+    assert candidate_range(Cut(0.5, 0.0, 0.2), 0.0, 10.0, 0.5) == (0.0, 0.0)   # near min
+    assert candidate_range(Cut(0.5, 4.0, 4.1), 0.0, 10.0, 0.5) == (4.0, 4.1)
+    assert candidate_range(cut, 0.0, 10.0, 0.5, use_bounds=False) == (9.8, 10.0)
+
+
+def test_event_bins_hand_computed():
+    # 100 values: 10 in each of bins 0..9 (bin size 1). Event rows all fall in bin 7.
+    all_values = np.repeat(np.arange(10) + 0.5, 10)
+    b = EventBinner(all_values, 1.0)
+    rows = np.flatnonzero(np.floor(all_values) == 7)
+    rows = np.concatenate([rows, rows, rows, rows])[:35]       # 35 event points in bin 7
+    found = b.best(rows, theta_e=0.3, min_points=30)
+    # local: bins 4..9 (clipped at 9): Pr(b7|E) = 1, Pr(b7) = 10/60 -> Δ = 0.8333
+    assert found is not None and found.normalisation == "local"
+    assert found.delta == pytest.approx(1 - 10 / 60)
+    assert (found.lb, found.ub) == (7.5, 8.5)           # buckets start at the minimum, 0.5
+    # fewer than 30 event points in the bucket: nothing (Appendix B.2)
+    assert b.best(rows[:29], 0.3, 30) is None
+
+
+def test_event_bins_global_normalisation_when_local_fails():
+    # Events spread over 7 neighbouring bins so the local Δ stays below θ_E, but in all 20 bins
+    # Pr(b|E) for the middle bin is 0.3 while Pr(b) is 0.05 -> global Δ = 0.25 < 0.3; add more.
+    all_values = np.repeat(np.arange(20) + 0.5, 50)                 # 1000 values, 50 per bin
+    mid = np.flatnonzero(np.floor(all_values) == 10)
+    near = np.flatnonzero((np.floor(all_values) >= 7) & (np.floor(all_values) <= 13))
+    rows = np.concatenate([np.repeat(mid, 2), near])              # 100 + 350 event points
+    b = EventBinner(all_values, 1.0)
+    found = b.best(rows, theta_e=0.05, min_points=30)
+    # local at bin 10: Pr(b|E) = 150/450 = 0.3333, Pr(b) = 50/350 = 0.142857 -> 0.190476
+    assert found is not None and found.normalisation == "local"
+    assert found.delta == pytest.approx(150 / 450 - 50 / 350)
+    found2 = b.best(rows, theta_e=0.2, min_points=30)
+    # global at bin 10: 150/450 - 50/1000 = 0.28333 > 0.2 (local 0.19 fails)
+    assert found2 is not None and found2.normalisation == "global"
+    assert found2.delta == pytest.approx(150 / 450 - 0.05)

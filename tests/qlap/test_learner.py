@@ -1,0 +1,122 @@
+"""The model learner end to end on the toy world of the issue, plus save/load."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from qlap_runtime.qlap import ModelLearner, Params
+from qlap_runtime.qlap.checkpoint import CheckpointError, load_learner, save_learner
+from qlap_runtime.qlap.variables import Kind
+from tests.qlap.toyworld import SPECS, babble_stream
+
+
+def learn(steps: int, seed: int = 0, params: Params | None = None) -> ModelLearner:
+    learner = ModelLearner(SPECS, params or Params())
+    for t, obs in babble_stream(steps, seed):
+        learner.observe(t, obs)
+    return learner
+
+
+@pytest.fixture(scope="module")
+def learned() -> ModelLearner:
+    return learn(20_000)
+
+
+def test_landmark_on_the_motor_threshold_and_its_mirror(learned: ModelLearner):
+    u = learned.perception.spaces[learned.table.index("u")].landmarks
+    pos = [m for m in u if m.lb > 0.05]
+    neg = [m for m in u if m.ub < -0.05]
+    assert len(pos) == 1 and 0.25 <= pos[0].lb <= pos[0].ub <= 0.35, u
+    assert len(neg) == 1 and -0.35 <= neg[0].lb <= neg[0].ub <= -0.25, u
+
+
+def test_landmarks_near_both_bounds_of_x(learned: ModelLearner):
+    x = learned.perception.spaces[learned.table.index("x")].landmarks
+    assert any(m.lb <= 1.0 and m.ub >= -0.1 and m.lb < 1.0 for m in x), x
+    assert any(m.ub >= 9.0 and m.lb <= 10.1 for m in x), x
+
+
+def test_reliable_dbn_from_the_motor_threshold_to_x_moving_up(learned: ModelLearner):
+    u, x = learned.table.index("u"), learned.table.index("x")
+    up = [d for d in learned.find_dbns("u", "x.dot")
+          if d.consequent.value == 2 and d.antecedent.value % 2 == 0
+          and learned.perception.spaces[u].bounds(d.antecedent.value)[0] > 0.25]
+    assert len(up) == 1
+    dbn = up[0]
+    lo, hi = learned.perception.spaces[u].bounds(dbn.antecedent.value)
+    assert 0.25 < lo < 0.36 and hi == np.inf
+    assert dbn.context == (x,)
+    assert dbn.ever_reliable and learned.stats(dbn).reliable
+    assert learned.dbn_label(dbn).startswith("⟨{x}: u→(0.3")
+
+
+def test_k_is_learned_from_motor_to_change_transitions(learned: ModelLearner):
+    assert learned.k_learned and 2 <= learned.k <= 15
+
+
+def test_magnitude_dbns_exist_for_every_reachable_value(learned: ModelLearner):
+    x = learned.table.index("x")
+    size = learned.perception.spaces[x].size
+    mags = learned.find_dbns(kind="magnitude")
+    keys = {(d.consequent.value, d.consequent.direction) for d in mags}
+    expected = {(v, 1) for v in range(1, size)} | {(v, -1) for v in range(size - 1)}
+    assert keys == expected
+
+
+def test_deterministic_for_a_seed():
+    a, b = learn(6000, seed=3), learn(6000, seed=3)
+    assert json.dumps(a.knowledge()) == json.dumps(b.knowledge())
+
+
+@pytest.mark.parametrize("lag", [0, 500])
+def test_save_load_mid_run_continues_identically(tmp_path, lag):
+    params = Params(batch_lag=lag)
+    stream = list(babble_stream(14_000, 1))
+    straight = ModelLearner(SPECS, params)
+    for t, obs in stream:
+        straight.observe(t, obs)
+    first = ModelLearner(SPECS, params)
+    for t, obs in stream[:8300]:
+        first.observe(t, obs)
+    save_learner(first, tmp_path / "ckpt")
+    resumed = load_learner(tmp_path / "ckpt")
+    for t, obs in stream[8300:]:
+        resumed.observe(t, obs)
+    assert json.dumps(resumed.knowledge()) == json.dumps(straight.knowledge())
+    for i, d in straight.dbns.items():
+        np.testing.assert_array_equal(resumed.dbns[i].cpt_s, d.cpt_s)
+    np.testing.assert_array_equal(resumed.pairs.soon_given, straight.pairs.soon_given)
+
+
+def test_corrupt_checkpoints_give_clear_errors(tmp_path):
+    learner = learn(500)
+    save_learner(learner, tmp_path)
+    (tmp_path / "learner.npz").write_bytes(b"not a zip")
+    with pytest.raises(CheckpointError, match="corrupt array file"):
+        load_learner(tmp_path)
+    (tmp_path / "learner.json").write_text("{")
+    with pytest.raises(CheckpointError, match="corrupt JSON"):
+        load_learner(tmp_path)
+    (tmp_path / "learner.json").write_text(json.dumps({"format": "qlap-learner", "version": 99}))
+    with pytest.raises(CheckpointError, match="version 99"):
+        load_learner(tmp_path)
+    with pytest.raises(CheckpointError, match="no such checkpoint"):
+        load_learner(tmp_path / "missing")
+
+
+def test_lag_delays_batches_but_keeps_learning():
+    learner = learn(9000, params=Params(batch_lag=700))
+    assert [a["applied_at"] - a["computed_at"] for a in learner.applied] == [700] * 4
+    assert any(learner.table[d.antecedent.var].kind is Kind.MOTOR for d in learner.dbns.values())
+
+
+def test_observe_rejects_bad_input_and_keeps_going():
+    learner = ModelLearner(SPECS, Params())
+    learner.observe(0, {"u": 0.0, "x": 1.0})
+    with pytest.raises(ValueError, match="'x'"):
+        learner.observe(1, {"u": 0.0, "x": float("nan")})
+    learner.observe(1, {"u": 0.5, "x": 1.0})
+    assert learner.step == 1
