@@ -1,0 +1,440 @@
+"""Plans' MDPs (§5.2–5.3): every number below is computed by hand in the comments."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from qlap_runtime.qlap.mdp import (
+    NOT_APPLICABLE,
+    MDPAction,
+    PlanSpec,
+    PlanStateSpace,
+    Role,
+    SarsaLambda,
+    TransitionModel,
+    action_map,
+    actions_from_state,
+    actions_to_state,
+    build_actions,
+    dyna_sweep,
+    greedy_action,
+    greedy_policy,
+    q_from_state,
+    q_to_state,
+    remap_q,
+    reward,
+    sarsa_reward,
+    split_value_map,
+    state_values,
+    value_iteration,
+)
+from qlap_runtime.qlap.params import Params
+from qlap_runtime.qlap.variables import Event
+
+P = Params()
+
+# --- the toy change plan --------------------------------------------------------------------
+# r = ⟨{C} : X → 1 ⇒ Y → 1⟩ with C = var 0, X = var 1, Y = var 2, all nominal with values {0, 1}.
+# State (c, x, y) has index 4c + 2x + y.
+# Actions: 0 = a(C, 0), 1 = a(C, 1), 2 = a(X, 1) (the antecedent action).
+# rel(a(C, ·)) = 0.9; rel(r, s) = 0.8 when C = 1 and 0.2 when C = 0.
+C, X, Y = 0, 1, 2
+TOY_SPEC = PlanSpec(goal=Event(Y, 1), antecedent=Event(X, 1))
+TOY_SPACE = PlanStateSpace.from_groups([[C], [X], [Y]], {C: 2, X: 2, Y: 2})
+A_C0, A_C1, ANTE = 0, 1, 2
+
+
+def toy_model(regress=None) -> TransitionModel:
+    actions = build_actions(TOY_SPACE, TOY_SPEC)
+    return TransitionModel.build(TOY_SPACE, actions, TOY_SPEC, [0.9, 0.9, 0.5],
+                                 lambda st: 0.8 if st[C] == 1 else 0.2, regress)
+
+
+def s_(c: int, x: int, y: int) -> int:
+    return 4 * c + 2 * x + y
+
+
+# --- state space ----------------------------------------------------------------------------
+
+
+def test_state_space_mixed_radix_by_hand() -> None:
+    sp = PlanStateSpace((3, 5, 7), (2, 3, 4))
+    assert sp.n_states == 24
+    assert sp.strides == (12, 4, 1)
+    assert sp.index((1, 2, 3)) == (1 * 3 + 2) * 4 + 3 == 23
+    assert sp.values(23) == (1, 2, 3)
+    assert sp.values(13) == (1, 0, 1)  # 13 = 1·12 + 0·4 + 1
+    assert all(sp.index(sp.values(i)) == i for i in range(24))
+    np.testing.assert_array_equal(sp.all_values()[13], [1, 0, 1])
+    # the agent's full vector is indexed by variable number; −1 (unavailable) gives None
+    full = [0, 0, 0, 1, 0, 1, 0, 3]
+    assert sp.index_from_full(full) == (1 * 3 + 1) * 4 + 3 == 19
+    assert sp.index_from_full([0, 0, 0, 2, 0, 1, 0, 3]) is None  # 2 is outside Q(var 3)
+    assert sp.index_from_full([0, 0, 0, 1, 0, -1, 0, 3]) is None
+    with pytest.raises(ValueError, match="outside"):
+        sp.index((2, 0, 0))
+
+
+def test_state_space_from_groups_keeps_each_variable_once() -> None:
+    # eq. 5.14: C_o = {5}, C = {3, 5}, X = 7, Y = 3 → (5, 3, 7)
+    sp = PlanStateSpace.from_groups([[5], [3, 5], [7], [3]], {3: 2, 5: 4, 7: 3})
+    assert sp.vars == (5, 3, 7)
+    assert sp.sizes == (4, 2, 3)
+    with pytest.raises(ValueError, match="twice"):
+        PlanStateSpace((1, 1), (2, 2))
+
+
+def test_with_variable_copies_q_to_every_value_of_the_new_variable() -> None:
+    model = toy_model()
+    q = value_iteration(model, P)
+    new_space, state_map = TOY_SPACE.with_variable(5, 3)
+    assert new_space.vars == (C, X, Y, 5)
+    # (1, 0, 0, 2) → ((1·2 + 0)·2 + 0)·3 + 2 = 14, which was old state (1, 0, 0) = 4
+    assert new_space.index((1, 0, 0, 2)) == 14
+    assert state_map[14] == 4
+    new_actions = build_actions(new_space, TOY_SPEC)
+    assert new_actions == [MDPAction(C, 0), MDPAction(C, 1), MDPAction(5, 0), MDPAction(5, 1),
+                           MDPAction(5, 2), MDPAction(X, 1, Role.ANTECEDENT)]
+    amap = action_map(model.actions, new_actions)
+    np.testing.assert_array_equal(amap, [0, 1, -1, -1, -1, 2])
+    new_model = TransitionModel.build(new_space, new_actions, TOY_SPEC, np.full(6, 0.9),
+                                      lambda st: 0.8 if st[C] == 1 else 0.2)
+    q2 = remap_q(q, state_map, amap, new_model.applicable, fill=-1.5)
+    for s_new in range(new_space.n_states):
+        c, x, y, _ = new_space.values(s_new)
+        old = TOY_SPACE.index((c, x, y))
+        np.testing.assert_array_equal(q2[s_new, [0, 1, 5]], q[old])
+        expected_new = -1.5 if y == 0 else NOT_APPLICABLE
+        np.testing.assert_array_equal(q2[s_new, 2:5], expected_new)
+
+
+def test_resized_splits_a_value_into_three_copies() -> None:
+    # var 7 had Q(7) = {(−∞, a), [a], (a, +∞)}; a landmark splits (a, +∞) (value 2) → 5 values
+    sp = PlanStateSpace((7, 2), (3, 2))
+    assert split_value_map(3, 2) == [0, 1, (2, 3, 4)]
+    assert split_value_map(3, 0) == [(0, 1, 2), 3, 4]
+    new, state_map = sp.resized(7, 5, split_value_map(3, 2))
+    assert new.sizes == (5, 2)
+    # new (v7, v2) → old (min(v7, 2), v2); index = 2·v7 + v2
+    np.testing.assert_array_equal(state_map, [0, 1, 2, 3, 4, 5, 4, 5, 4, 5])
+    q = np.arange(12.0).reshape(6, 2)
+    q2 = remap_q(q, state_map)
+    np.testing.assert_array_equal(q2[new.index((3, 1))], q[sp.index((2, 1))])  # [10, 11]
+    np.testing.assert_array_equal(q2[new.index((4, 0))], [8.0, 9.0])
+    # a(7, q) on the resized variable continues a(7, new_to_old[q])
+    old_actions = [MDPAction(7, q) for q in range(3)]
+    new_actions = [MDPAction(7, q) for q in range(5)]
+    np.testing.assert_array_equal(
+        action_map(old_actions, new_actions, {7: [0, 1, 2, 2, 2]}), [0, 1, 2, 2, 2])
+    with pytest.raises(ValueError, match="no old value"):
+        sp.resized(7, 5, [0, 1, (2, 3)])
+    with pytest.raises(ValueError, match="two old values"):
+        sp.resized(7, 3, [0, 1, 1])
+
+
+# --- transitions and applicability ----------------------------------------------------------
+
+
+def test_toy_transitions() -> None:
+    m = toy_model()
+    # context a(C, 1) from (0, 1, 0): success → (1, 1, 0) with 0.9, else stays
+    assert m.applicable[s_(0, 1, 0), A_C1]
+    assert (m.next1[s_(0, 1, 0), A_C1], m.next2[s_(0, 1, 0), A_C1]) == (s_(1, 1, 0), s_(0, 1, 0))
+    assert m.p1[s_(0, 1, 0), A_C1] == pytest.approx(0.9)
+    # antecedent from (1, 0, 0): → (1, 1, 1) with rel(r, s) = 0.8, else (1, 1, 0)
+    assert (m.next1[s_(1, 0, 0), ANTE], m.next2[s_(1, 0, 0), ANTE]) == (s_(1, 1, 1), s_(1, 1, 0))
+    assert m.p1[s_(1, 0, 0), ANTE] == pytest.approx(0.8)
+    assert m.p1[s_(0, 0, 0), ANTE] == pytest.approx(0.2)
+    # X is not a magnitude: a(X, 1) stays applicable where X = 1 already (footnote 2)
+    assert m.applicable[s_(0, 1, 0), ANTE]
+    # nothing is applicable in a goal state (Y = 1); everything else is
+    np.testing.assert_array_equal(m.applicable.all(axis=1), [c == 0 for c in (0, 1) * 4])
+    np.testing.assert_array_equal(m.applicable.any(axis=1), [y == 0 for y in (0, 1) * 4])
+    np.testing.assert_array_equal(m.goal, [True if i % 2 else False for i in range(8)])
+    # eq. 5.5 rewards: into the goal 10 − 2 = 8, else −2
+    r1, r2 = m.rewards(P)
+    assert (r1[s_(1, 0, 0), ANTE], r2[s_(1, 0, 0), ANTE]) == (8.0, -2.0)
+    np.testing.assert_array_equal(reward(np.array([True, False]), P), [8.0, -2.0])
+
+
+def test_rule2_regress_predicate_and_mask() -> None:
+    # exclude a(C, 1) wherever C = 0 (as if it would call a(Y, 1) again)
+    def regress(state, a):
+        return a == MDPAction(C, 1) and state[C] == 0
+
+    m = toy_model(regress)
+    base = toy_model()
+    expected = base.applicable.copy()
+    for x in (0, 1):
+        expected[s_(0, x, 0), A_C1] = False
+    np.testing.assert_array_equal(m.applicable, expected)
+    assert m.p1[s_(0, 0, 0), A_C1] == 0.0
+    assert m.next1[s_(0, 0, 0), A_C1] == s_(0, 0, 0)
+    mask = np.zeros((8, 3), dtype=bool)
+    mask[[s_(0, 0, 0), s_(0, 1, 0)], A_C1] = True
+    np.testing.assert_array_equal(toy_model(mask).applicable, expected)
+
+
+# change plan with a magnitude antecedent ↑X → x: X = var 1 with values 0 = (−∞, x),
+# 1 = [x], 2 = (x, +∞); Y = var 2 nominal {0, 1}; state (x, y) has index 2x + y.
+# build_actions gives 0 = a(X, 0), 1 = a(X, 2), 2 = a(X, 1) (antecedent).
+
+
+def magnitude_antecedent_model(direction: int) -> TransitionModel:
+    spec = PlanSpec(goal=Event(Y, 1), antecedent=Event(X, 1, direction),
+                    magnitude_vars=frozenset({X}))
+    space = PlanStateSpace((X, Y), (3, 2))
+    actions = build_actions(space, spec)
+    assert actions == [MDPAction(X, 0), MDPAction(X, 2), MDPAction(X, 1, Role.ANTECEDENT)]
+    return TransitionModel.build(space, actions, spec, [0.9, 0.7, 0.5], np.full(6, 0.6))
+
+
+def test_wrong_side_gives_probability_zero() -> None:
+    up = magnitude_antecedent_model(+1)
+    # X below x: ↑X → x can happen; success (1, 1) with rel(r, s) = 0.6, else (1, 0)
+    assert (up.next1[0, 2], up.p1[0, 2], up.next2[0, 2]) == (3, pytest.approx(0.6), 2)
+    # X above x is the wrong side for ↑: Pr(s'1) = 0 and Pr(s'2 = (1, 0)) = 1
+    assert up.applicable[4, 2]
+    assert (up.p1[4, 2], up.next2[4, 2]) == (0.0, 2)
+    down = magnitude_antecedent_model(-1)
+    assert down.p1[0, 2] == 0.0  # X below x is the wrong side for ↓
+    assert down.p1[4, 2] == pytest.approx(0.6)
+
+
+def test_rule1_and_rule3_on_a_magnitude_antecedent() -> None:
+    up = magnitude_antecedent_model(+1)
+    # rule 1: a(X, 1) is not applicable where X = 1; rule 3 (↑): a(X, 0) only where X ≥ x
+    # (moving below x makes ↑X → x achievable), a(X, 2) never
+    np.testing.assert_array_equal(up.applicable[[0, 2, 4]], [[False, False, True],
+                                                             [True, False, False],
+                                                             [True, False, True]])
+    assert (up.next1[4, 0], up.p1[4, 0], up.next2[4, 0]) == (0, pytest.approx(0.9), 4)
+    down = magnitude_antecedent_model(-1)
+    np.testing.assert_array_equal(down.applicable[[0, 2, 4]], [[False, True, True],
+                                                               [False, True, False],
+                                                               [False, False, True]])
+    assert not up.applicable[[1, 3, 5]].any()  # goal states
+
+
+# magnitude plan r⁺ = ⟨∅ : Ẏ → [+] ⇒ ↑Y → y⟩ (§5.3): Y = var 0 with values 0 = (−∞, y),
+# 1 = [y], 2 = (y, +∞); Ẏ = var 1 with values 0 = [−], 1 = [0], 2 = [+]. State (y, ẏ) has
+# index 3y + ẏ. Actions: 0 = a(Ẏ, [+]) (antecedent, rel(a) = 0.5), 1 = wait (rel(r, s) = 0.8).
+
+
+def magnitude_plan_model() -> TransitionModel:
+    spec = PlanSpec(goal=Event(0, 1, +1), antecedent=Event(1, 2), magnitude_plan=True,
+                    magnitude_vars=frozenset({0}))
+    space = PlanStateSpace((0, 1), (3, 3))
+    actions = build_actions(space, spec)
+    assert actions == [MDPAction(1, 2, Role.ANTECEDENT), MDPAction.wait()]
+    return TransitionModel.build(space, actions, spec, [0.5, 0.0], np.full(9, 0.8))
+
+
+def test_magnitude_plan_actions_and_transitions() -> None:
+    m = magnitude_plan_model()
+    # Y below y: a(Ẏ, [+]) where Ẏ ≠ [+], wait only where Ẏ = [+]; Y = y: goal;
+    # Y above y: the wrong side of r⁺, nothing applicable
+    expected = np.zeros((9, 2), dtype=bool)
+    expected[[0, 1], 0] = True
+    expected[2, 1] = True
+    np.testing.assert_array_equal(m.applicable, expected)
+    # the antecedent action is a context move with rel(a): (0, [0]) → (0, [+]) or stays
+    assert (m.next1[1, 0], m.p1[1, 0], m.next2[1, 0]) == (2, pytest.approx(0.5), 1)
+    # wait: (0, [+]) → (y, [+]) = 5 with rel(r, s), else stays
+    assert (m.next1[2, 1], m.p1[2, 1], m.next2[2, 1]) == (5, pytest.approx(0.8), 2)
+
+
+def test_magnitude_plan_value_iteration_by_hand() -> None:
+    q = value_iteration(magnitude_plan_model(), P)
+    # V(0,[+]) = 0.8·8 + 0.2·(−2 + 0.9·V) ⇒ 0.82·V = 6 ⇒ V = 300/41 ≈ 7.3171
+    v_plus = 300 / 41
+    # V(0,[0]) = 0.5·(−2 + 0.9·V(0,[+])) + 0.5·(−2 + 0.9·V(0,[0]))
+    #   ⇒ 0.55·V = −2 + 0.45·300/41 = 53/41 ⇒ V = 53/22.55 ≈ 2.3503
+    v_zero = 53 / 41 / 0.55
+    assert q[2, 1] == pytest.approx(v_plus, abs=1e-5)
+    assert q[1, 0] == pytest.approx(v_zero, abs=1e-5)
+    assert q[0, 0] == pytest.approx(v_zero, abs=1e-5)
+    assert q[2, 0] == NOT_APPLICABLE
+    np.testing.assert_array_equal(greedy_policy(q), [0, 0, 1, -1, -1, -1, -1, -1, -1])
+
+
+def test_model_validation() -> None:
+    with pytest.raises(ValueError, match="direction"):
+        PlanSpec(goal=Event(Y, 1), antecedent=Event(X, 1), magnitude_vars=frozenset({X}))
+    with pytest.raises(ValueError, match="direction"):
+        PlanSpec(goal=Event(0, 1), antecedent=Event(1, 2), magnitude_plan=True)
+    with pytest.raises(ValueError, match="magnitude plans only"):
+        TransitionModel.build(TOY_SPACE, [MDPAction.wait()], TOY_SPEC, [0.5], np.zeros(8))
+    with pytest.raises(ValueError, match=r"rel\(r, s\)"):
+        TransitionModel.build(TOY_SPACE, [MDPAction(C, 0)], TOY_SPEC, [0.5], np.full(8, 1.5))
+    with pytest.raises(ValueError, match="is not"):
+        TransitionModel.build(TOY_SPACE, [MDPAction(C, 1, Role.ANTECEDENT)], TOY_SPEC, [0.5],
+                              np.zeros(8))
+
+
+# --- value iteration, Dyna ------------------------------------------------------------------
+
+
+def test_value_iteration_two_sweeps_by_hand() -> None:
+    q = value_iteration(toy_model(), P.replace(value_iteration_max_sweeps=2))
+    # sweep 1 (V = 0): antecedent at C = 1: 0.8·8 + 0.2·(−2) = 6.0; at C = 0: 0.2·8 + 0.8·(−2)
+    # = 0.0; every context move −2. So V(C=1) = 6, V(C=0) = 0 for Y = 0.
+    # sweep 2:
+    for x in (0, 1):
+        # antecedent at C = 1: 0.8·8 + 0.2·(−2 + 0.9·6) = 6.4 + 0.68 = 7.08
+        assert q[s_(1, x, 0), ANTE] == pytest.approx(7.08)
+        # antecedent at C = 0: 0.2·8 + 0.8·(−2 + 0.9·0) = 0.0
+        assert q[s_(0, x, 0), ANTE] == pytest.approx(0.0)
+        # a(C, 1) from C = 0: 0.9·(−2 + 0.9·6) + 0.1·(−2 + 0) = 3.06 − 0.2 = 2.86
+        assert q[s_(0, x, 0), A_C1] == pytest.approx(2.86)
+        # a(C, 0) from C = 1: 0.9·(−2 + 0) + 0.1·(−2 + 5.4) = −1.8 + 0.34 = −1.46
+        assert q[s_(1, x, 0), A_C0] == pytest.approx(-1.46)
+        # a(C, 1) from C = 1 (a self-loop): −2 + 5.4 = 3.4
+        assert q[s_(1, x, 0), A_C1] == pytest.approx(3.4)
+        assert q[s_(0, x, 0), A_C0] == pytest.approx(-2.0)
+    assert np.all(q[[1, 3, 5, 7]] == NOT_APPLICABLE)
+
+
+def test_value_iteration_fixed_point_by_hand() -> None:
+    q = value_iteration(toy_model(), P)
+    v = state_values(q)
+    # C = 1: V = 0.8·8 + 0.2·(−2 + 0.9·V) ⇒ 0.82·V = 6 ⇒ V = 300/41 ≈ 7.3171
+    v1 = 300 / 41
+    # C = 0: a(C, 1): V = 0.9·(−2 + 0.9·v1) + 0.1·(−2 + 0.9·V) = −2 + 0.81·v1 + 0.09·V
+    #   ⇒ 0.91·V = −2 + 243/41 = 161/41 ⇒ V ≈ 4.3152 (the antecedent there gives 0.72·V)
+    v0 = 161 / 41 / 0.91
+    np.testing.assert_allclose(v, [v0, 0, v0, 0, v1, 0, v1, 0], atol=1e-5)
+    np.testing.assert_array_equal(greedy_policy(q), [A_C1, -1, A_C1, -1, ANTE, -1, ANTE, -1])
+    # the fixed point is left alone by a Dyna sweep (eq. 5.10)
+    q2 = dyna_sweep(q.copy(), toy_model(), P)
+    np.testing.assert_allclose(q2, q, atol=1e-5)
+
+
+def test_dyna_sweep_by_hand() -> None:
+    m = toy_model()
+    q = m.initial_q()
+    q[s_(1, 1, 0), ANTE] = 5.0  # so V(1, 1, 0) = 5, every other V = 0
+    out = dyna_sweep(q, m, P)
+    assert out is q  # in place
+    # antecedent at (1, 0, 0): target 0.8·8 + 0.2·(−2 + 0.9·5) = 6.9; 0.8·0 + 0.2·6.9 = 1.38
+    assert q[s_(1, 0, 0), ANTE] == pytest.approx(1.38)
+    # antecedent at (1, 1, 0): 0.8·5 + 0.2·6.9 = 5.38
+    assert q[s_(1, 1, 0), ANTE] == pytest.approx(5.38)
+    # a(C, 1) at (0, 1, 0): target 0.9·(−2 + 4.5) + 0.1·(−2) = 2.05; 0.2·2.05 = 0.41
+    assert q[s_(0, 1, 0), A_C1] == pytest.approx(0.41)
+    # a(C, 1) at (0, 0, 0): target −2 (V(1, 0, 0) was 0); 0.2·(−2) = −0.4
+    assert q[s_(0, 0, 0), A_C1] == pytest.approx(-0.4)
+    # antecedent at (0, 0, 0): target 0.2·8 + 0.8·(−2 + 0) = 0
+    assert q[s_(0, 0, 0), ANTE] == pytest.approx(0.0)
+    assert np.all(q[[1, 3, 5, 7]] == NOT_APPLICABLE)
+
+
+# --- ε-greedy (§6.1.3) ----------------------------------------------------------------------
+
+
+def test_greedy_action_none_and_greedy() -> None:
+    q = np.array([[NOT_APPLICABLE, NOT_APPLICABLE], [1.0, 3.0]])
+    rng = np.random.default_rng(0)
+    assert greedy_action(q, 0, rng, 0.05) is None
+    assert all(greedy_action(q, 1, rng, 0.0) == 1 for _ in range(50))
+
+
+def test_greedy_action_is_deterministic_for_a_seed() -> None:
+    q = np.array([[0.0, 2.0, NOT_APPLICABLE, 1.0]])
+    a = [greedy_action(q, 0, np.random.default_rng(7), 0.5) for _ in range(2)]
+    rng1, rng2 = np.random.default_rng(11), np.random.default_rng(11)
+    seq1 = [greedy_action(q, 0, rng1, 0.5) for _ in range(200)]
+    seq2 = [greedy_action(q, 0, rng2, 0.5) for _ in range(200)]
+    assert a[0] == a[1]
+    assert seq1 == seq2
+    assert set(seq1) == {0, 1, 3}  # ε = 0.5 explores all applicable actions, never action 2
+
+
+def test_greedy_action_frequencies() -> None:
+    # ε = 0.3 over 3 applicable actions: best 0.7 + 0.3/3 = 0.8, others 0.1, inapplicable 0
+    q = np.array([[0.0, NOT_APPLICABLE, 2.0, 1.0]])
+    rng = np.random.default_rng(2024)
+    n = 20_000
+    counts = np.bincount([greedy_action(q, 0, rng, 0.3) for _ in range(n)], minlength=4) / n
+    np.testing.assert_allclose(counts, [0.1, 0.0, 0.8, 0.1], atol=0.01)
+    # ties are broken at random
+    tie = np.array([[1.0, 1.0]])
+    picks = {greedy_action(tie, 0, rng, 0.0) for _ in range(100)}
+    assert picks == {0, 1}
+
+
+# --- Sarsa(λ) (eq. 5.7–5.9) -----------------------------------------------------------------
+
+
+def test_sarsa_reward() -> None:
+    assert sarsa_reward(True, 4, P) == pytest.approx(9.96)   # 10 − 0.01·4
+    assert sarsa_reward(False, 5, P) == pytest.approx(-0.05)  # 0 − 0.01·5
+
+
+def test_sarsa_lambda_three_step_episode_by_hand() -> None:
+    q = np.zeros((4, 2))
+    q[1, 1] = 1.0
+    q[3, 0] = NOT_APPLICABLE
+    sarsa = SarsaLambda(q, P)
+    sarsa.start(0, 0)
+    # step 1: (0,0) → r' = −0.05 → (1,1). δ = −0.05 + 0.9·1 − 0 = 0.85; Q(0,0) = 0.2·0.85
+    # = 0.17; then the trace of (0,0) decays 1 → λγ = 0.81
+    assert sarsa.update(0, 0, sarsa_reward(False, 5, P), 1, 1) == pytest.approx(0.85)
+    assert q[0, 0] == pytest.approx(0.17)
+    assert sarsa.e[0, 0] == pytest.approx(0.81)
+    # step 2: (1,1) → r' = −0.03 → (2,0). δ = −0.03 + 0 − 1 = −1.03;
+    # Q(1,1) = 1 + 0.2·(−1.03)·1 = 0.794; Q(0,0) = 0.17 + 0.2·(−1.03)·0.81 = 0.00314
+    assert sarsa.update(1, 1, sarsa_reward(False, 3, P), 2, 0) == pytest.approx(-1.03)
+    assert q[1, 1] == pytest.approx(0.794)
+    assert q[0, 0] == pytest.approx(0.00314)
+    np.testing.assert_allclose(sarsa.e[[0, 1], [0, 1]], [0.6561, 0.81])
+    # step 3: (2,0) → goal, r' = 10 − 0.04 = 9.96, terminal: δ = 9.96 − 0
+    # Q(2,0) = 0.2·9.96 = 1.992; Q(1,1) = 0.794 + 1.992·0.81 = 2.40752;
+    # Q(0,0) = 0.00314 + 1.992·0.6561 = 1.3100912
+    assert sarsa.update(2, 0, sarsa_reward(True, 4, P), 3, None) == pytest.approx(9.96)
+    assert q[2, 0] == pytest.approx(1.992)
+    assert q[1, 1] == pytest.approx(2.40752)
+    assert q[0, 0] == pytest.approx(1.3100912)
+    assert q[3, 0] == NOT_APPLICABLE
+    assert not sarsa.e.any()  # the episode ended
+
+
+def test_sarsa_traces_are_replacing() -> None:
+    q = np.zeros((2, 1))
+    sarsa = SarsaLambda(q, P)
+    sarsa.start(0, 0)
+    sarsa.update(0, 0, 1.0, 0, 0)  # δ = 1 + 0.9·0 − 0 = 1: Q(0,0) = 0.2; e → 0.81
+    # revisit: e(0,0) is set to 1 (accumulating would give 1.81). δ = 1 + 0.9·Q(1,0) − 0.2
+    # = 0.8; Q(0,0) = 0.2 + 0.2·0.8·1 = 0.36 (accumulating: 0.2 + 0.16·1.81 = 0.4896)
+    sarsa.update(0, 0, 1.0, 1, 0)
+    assert q[0, 0] == pytest.approx(0.36)
+    assert sarsa.e[0, 0] == pytest.approx(0.81)
+    with pytest.raises(ValueError, match="not applicable"):
+        SarsaLambda(np.array([[NOT_APPLICABLE]]), P).start(0, 0)
+
+
+# --- serialisation --------------------------------------------------------------------------
+
+
+def test_state_round_trips_through_strict_json() -> None:
+    m = toy_model()
+    q = value_iteration(m, P)
+    sarsa = SarsaLambda(q, P)
+    sarsa.start(s_(0, 0, 0), A_C1)
+    sarsa.update(s_(0, 0, 0), A_C1, -0.02, s_(1, 0, 0), ANTE)
+    blob = json.dumps({"space": TOY_SPACE.to_state(), "actions": actions_to_state(m.actions),
+                       "sarsa": sarsa.to_state(), "q": q_to_state(q)}, allow_nan=False)
+    data = json.loads(blob)
+    assert PlanStateSpace.from_state(data["space"]) == TOY_SPACE
+    assert actions_from_state(data["actions"]) == list(m.actions)
+    back = SarsaLambda.from_state(data["sarsa"], P)
+    np.testing.assert_array_equal(back.q, q)
+    np.testing.assert_array_equal(back.e, sarsa.e)
+    assert back.e[s_(0, 0, 0), A_C1] == pytest.approx(0.81)
+    np.testing.assert_array_equal(q_from_state(data["q"]), q)
+    # npz-friendly: the same dict as arrays
+    as_arrays = {k: np.asarray(v) for k, v in q_to_state(q).items()}
+    np.testing.assert_array_equal(q_from_state(as_arrays), q)
