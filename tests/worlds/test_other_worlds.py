@@ -1,0 +1,130 @@
+"""core2d, pong and the Gymnasium wrapper."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from worlds import VarKind, check_world, make
+from worlds.core2d.world import Core2DWorld
+from worlds.gym_wrapper import GymWorld
+from worlds.pong.world import PongWorld
+
+
+def test_core2d_friction_threshold_and_push() -> None:
+    world = make("core2d")
+    assert isinstance(world, Core2DWorld)
+    world.reset(seed=0)
+    world.set_hand(0.0, 0.5)
+    world.block.position = (-3.2, -1.9)  # type: ignore[union-attr]
+    start = world.hand.position.x
+    for _ in range(40):
+        world.step({"u_x": 290.0})
+    assert abs(world.hand.position.x - start) < 1e-6
+    for _ in range(10):
+        obs = world.step({"u_x": 400.0})
+    assert world.hand.position.x - start > 1.0
+    assert obs["h_x"] > start
+
+
+def test_core2d_block_pushed_off_the_table_falls_and_is_replaced() -> None:
+    world = make("core2d")
+    world.reset(seed=1)
+    world.set_hand(-1.0, 0.0)  # type: ignore[attr-defined]
+    world.block.position = (1.5, 0.0)  # type: ignore[attr-defined]
+    z_f = []
+    for _ in range(120):
+        obs = world.step({"u_x": 600.0})
+        z_f.append(obs["z_F"])
+        if world.block_replaced:  # type: ignore[attr-defined]
+            break
+    assert min(z_f) < 1.0  # fell towards the floor
+    assert world.block_replaced  # type: ignore[attr-defined]
+    assert obs["z_F"] == 10.5
+
+
+def test_pong_ball_reflects_off_a_paddle() -> None:
+    world = make("pong")
+    assert isinstance(world, PongWorld)
+    world.reset(seed=0)
+    world.paddle_y = 6.0
+    world.ball, world.ball_v = [1.6, 6.2], [-0.4, 0.1]
+    obs = world.step({"u": 0.0})
+    assert world.hit
+    assert world.ball_v[0] > 0
+    before = obs["b_x"]
+    obs = world.step({"u": 0.0})
+    assert obs["b_x"] > before  # now moving right: b_x.dot = [+]
+    assert obs["cl_x"] == pytest.approx(1.0 - obs["b_x"])
+
+
+def test_pong_miss_starts_a_new_volley_in_the_middle() -> None:
+    world = make("pong")
+    world.reset(seed=0)
+    world.paddle_y = 1.5  # type: ignore[attr-defined]
+    world.ball, world.ball_v = [1.6, 10.0], [-0.4, 0.0]  # type: ignore[attr-defined]
+    for _ in range(10):
+        world.step({"u": 0.0})
+        if world.missed:  # type: ignore[attr-defined]
+            break
+    assert world.missed  # type: ignore[attr-defined]
+    obs = world.step({"u": 0.0})
+    assert abs(obs["b_x"] - 10.0) < 0.5
+    assert obs["l_y"] == 6.0
+
+
+def test_pong_motor_is_three_valued() -> None:
+    world = make("pong")
+    world.reset(seed=0)
+    y = world.observation["l_y"]
+    assert world.step({"u": 0.03})["l_y"] == y  # dead band: steady
+    assert world.step({"u": 0.7})["l_y"] == y + 0.5
+    assert world.step({"u": -1.0})["l_y"] == y
+
+
+@pytest.mark.parametrize(
+    ("env_id", "motors", "sensed"),
+    [
+        ("Pendulum-v1", ["torque"], ["cos_theta", "sin_theta", "theta_dot"]),
+        ("MountainCarContinuous-v0", ["force"], ["position", "velocity"]),
+    ],
+)
+def test_gym_wrapper_on_classic_control(env_id: str, motors: list[str], sensed: list[str]) -> None:
+    world = make(f"gym:{env_id}")
+    try:
+        assert isinstance(world, GymWorld)
+        assert [v.name for v in world.variables if v.kind is VarKind.MOTOR] == motors
+        assert [v.name for v in world.variables if v.kind is VarKind.MAGNITUDE] == sensed
+        motor = world.variables[0]
+        assert motor.low is not None
+        assert motor.high is not None
+        assert motor.low < 0 < motor.high
+        check_world(world, steps=100, seed=3)
+    finally:
+        world.close()
+
+
+def test_gym_wrapper_restarts_on_truncation_and_takes_names() -> None:
+    world = make("gym:Pendulum-v1", obs_names=("c", "s", "w"), act_names=("tau",))
+    try:
+        assert [v.name for v in world.variables] == ["tau", "c", "s", "w"]
+        rng = np.random.default_rng(0)
+        world.reset(seed=0)
+        for _ in range(450):  # Pendulum-v1 is truncated after 200 steps
+            obs = world.step({"tau": float(rng.uniform(-2, 2))})
+        assert world.episodes == 3  # type: ignore[attr-defined]
+        assert set(obs) == {"c", "s", "w"}
+    finally:
+        world.close()
+
+
+def test_gym_wrapper_default_names_and_errors() -> None:
+    world = make("gym:CartPole-v1", obs_names=None)
+    try:
+        assert world.motor_names == ("push",)
+        spec = world.variables[0]
+        assert (spec.low, spec.high) == (0.0, 1.0)
+    finally:
+        world.close()
+    with pytest.raises(ValueError, match="names"):
+        make("gym:Pendulum-v1", obs_names=("a",))

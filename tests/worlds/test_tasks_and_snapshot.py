@@ -1,0 +1,112 @@
+"""Evaluation tasks (§7.2), the random baseline, and the PNG snapshot."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from worlds import Goal, make
+from worlds.evaluate import run_random_trials
+from worlds.snapshot import main_snapshot, write_png
+
+
+def test_core_tasks_and_goals() -> None:
+    world = make("core")
+    assert set(world.tasks) == {"move_block", "hit_floor", "pickup"}
+    rng = np.random.default_rng(0)
+    goals = set()
+    for _ in range(30):
+        obs = world.tasks["move_block"].setup(world, rng)
+        goals.add(world.tasks["move_block"].goal(world, obs))
+    assert goals <= {Goal("T_L.dot", "+"), Goal("T_R.dot", "-"), Goal("T_T.dot", "+")}
+    assert len(goals) == 3
+    assert world.tasks["hit_floor"].goal(world, obs) == Goal("bang", "true")
+    assert world.tasks["pickup"].goal(world, obs) == Goal("T", "true")
+    assert set(make("core:secondary:aligned").tasks) == {"pickup", "hit_secondary"}
+    contingent = make("core:contingent:rising").tasks["contingent_up"]
+    assert contingent.step_cost == -0.1
+    assert contingent.hold_motors_at_zero_without_plan
+    assert make("pong").tasks["pong_volley"].goal(make("pong"), {}).variable == "b_x.dot"
+
+
+def test_task_trial_setup_places_block_within_reach() -> None:
+    world = make("core")
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        obs = world.tasks["pickup"].setup(world, rng)
+        assert world.step_count == 0
+        assert obs["z_F"] == pytest.approx(10.5, abs=0.01)
+        assert -8.0 < obs["T_L"] < 0.0
+        assert not world.block_out_of_reach  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize(
+    ("spec", "task"),
+    [
+        ("core", "move_block"),
+        ("core", "hit_floor"),
+        ("core", "pickup"),
+        ("core:secondary:aligned", "hit_secondary"),
+        ("core:contingent:jump", "contingent_up"),
+        ("core2d", "move_block"),
+        ("pong", "pong_volley"),
+    ],
+)
+def test_random_trials_report(spec: str, task: str) -> None:
+    world = make(spec)
+    result = run_random_trials(world, task, n_trials=3, seed=0)
+    assert result["n_trials"] == 3
+    assert len(result["rewards"]) == 3
+    t = world.tasks[task]
+    for reward in result["rewards"]:
+        assert t.step_cost * t.max_steps - 1e-9 <= reward
+        assert reward <= t.success_reward * (1 if t.episodic else t.max_steps)
+    again = run_random_trials(world, task, n_trials=3, seed=0)
+    assert again["rewards"] == result["rewards"]
+
+
+def test_unknown_task() -> None:
+    with pytest.raises(ValueError, match="no task 'fly'"):
+        run_random_trials(make("core"), "fly", 1, 0)
+
+
+def test_write_png(tmp_path: Path) -> None:
+    image = np.zeros((4, 5, 3), dtype=np.uint8)
+    image[1, 2] = (255, 0, 0)
+    write_png(tmp_path / "a.png", image)
+    assert (tmp_path / "a.png").read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
+
+
+def _offscreen_gl() -> bool:
+    import ctypes.util
+
+    import worlds.core  # noqa: F401 - sets MUJOCO_GL=osmesa without a display
+
+    if os.environ.get("MUJOCO_GL") == "osmesa":
+        return ctypes.util.find_library("OSMesa") is not None
+    return bool(os.environ.get("DISPLAY") or os.environ.get("MUJOCO_GL") == "egl")
+
+
+@pytest.mark.skipif(
+    not _offscreen_gl(), reason="no offscreen GL: install libosmesa6 (MUJOCO_GL=osmesa)"
+)
+@pytest.mark.parametrize("spec", ["core", "core:secondary:aligned"])
+def test_snapshot_png(tmp_path: Path, spec: str, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "scene.png"
+    assert (
+        main_snapshot(
+            ["--world", spec, "--out", str(out), "--seed", "1", "--width", "160", "--height", "120"]
+        )
+        == 0
+    )
+    data = out.read_bytes()
+    assert data.startswith(b"\x89PNG")
+    assert len(data) > 2000  # not a blank picture
+    assert str(out) in capsys.readouterr().out
+
+
+def test_snapshot_rejects_non_mujoco_worlds(tmp_path: Path) -> None:
+    assert main_snapshot(["--world", "pong", "--out", str(tmp_path / "p.png")]) == 2
