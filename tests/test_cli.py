@@ -1,0 +1,37 @@
+"""The `qlap` command line, run as a user would (a subprocess)."""
+
+import json
+import subprocess
+import sys
+
+
+def qlap(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "qlap_runtime.cli", *args],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_run_headless_writes_knowledge_summary_and_checkpoint(tmp_path):
+    out = tmp_path / "run"
+    r = qlap("run", "--headless", "--quiet", "--world", "core", "--steps", "10000",
+             "--seed", "2", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps"] == 10000
+    assert summary["steps_per_s"] > 0
+    knowledge = json.loads((out / "knowledge.json").read_text())
+    assert knowledge["step"] == 9999
+    assert len(knowledge["dbns"]) == summary["dbns"] > 0
+    assert (out / "checkpoints" / "step-0010000" / "learner.json").exists()
+    assert "landmarks:" in r.stdout
+
+
+def test_bad_world_and_bad_flags_give_clear_errors():
+    r = qlap("run", "--world", "nosuchworld", "--steps", "10")
+    assert r.returncode == 2
+    assert "nosuchworld" in r.stderr
+    r = qlap("run", "--steps", "-5")
+    assert r.returncode == 2
+    assert "positive integer" in r.stderr
+    r = qlap("run", "--lag", "5000", "--steps", "10")
+    assert r.returncode == 2
+    assert "batch_lag" in r.stderr
