@@ -15,10 +15,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from worlds import make, registered  # noqa: E402
-from worlds.check import random_motor  # noqa: E402
+from worlds import make, registered
+from worlds.check import random_motor
 
 
 def bench(spec: str, steps: int, seed: int = 0) -> float:
