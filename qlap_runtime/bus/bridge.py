@@ -1,0 +1,480 @@
+"""The trio <-> Zenoh bridge (DESIGN.md §5; docs/bus.md).
+
+Zenoh callbacks run on Zenoh's threads (or, for a put in the same session, synchronously in the
+putting thread). They never touch actor state: they append ``(key, payload, receive time)`` to a
+locked deque and, only when the deque was empty, schedule ``event.set`` on the trio loop with
+``trio_token.run_sync_soon`` (``Event.set`` cannot raise). The trio task drains the whole deque
+per wake-up and decodes at the edge, where a :class:`RejectionCounter` counts and logs malformed
+messages with their key expression and never raises into the actor.
+
+- :class:`TrioSubscriber` — ``async for batch in sub`` / ``await sub.receive_batch()``.
+- :class:`Publisher` — encodes messages; ``CongestionControl.BLOCK`` on topics that must not
+  lose data, ``DROP`` on display topics.
+- :func:`declare_alive` / :class:`AliveWatcher` — liveliness tokens of actors.
+- :class:`StateQueryable` / :func:`fetch` — current state for late joiners.
+
+Every object here is a context manager; undeclare (or leave the ``with``) before closing the
+session.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+import trio
+import zenoh
+
+from . import keys
+from .schema import TOPIC_TYPES, Message, MessageError, Rejected, decode, encode
+
+log = logging.getLogger("qlap.bus")
+
+RELIABLE_TOPICS = frozenset({"sense", "qstate", "motor", "delta/dbn", "delta/landmarks",
+                             "delta/plans", "control"})
+"""Topics that must not lose data: published with ``CongestionControl.BLOCK``."""
+DISPLAY_TOPICS = frozenset({"calllist", "iac", "stats"})
+"""Display topics: published with ``CongestionControl.DROP`` (a slow viewer loses frames, the
+agent never waits for it)."""
+
+assert RELIABLE_TOPICS | DISPLAY_TOPICS == set(keys.TOPICS)
+
+T = TypeVar("T")
+
+
+def congestion_control(topic: str) -> zenoh.CongestionControl:
+    """BLOCK for :data:`RELIABLE_TOPICS`, DROP for :data:`DISPLAY_TOPICS`."""
+    if topic in RELIABLE_TOPICS:
+        return zenoh.CongestionControl.BLOCK
+    if topic in DISPLAY_TOPICS:
+        return zenoh.CongestionControl.DROP
+    raise keys.BusKeyError(f"unknown topic {topic!r}")
+
+
+# --------------------------------------------------------------------------- inbox
+
+
+class TrioInbox(Generic[T]):
+    """A thread-safe inbox feeding one trio task: :meth:`push` from any thread,
+    ``await`` :meth:`get_batch` in trio. Create it inside the trio run that consumes it.
+
+    Invariant: the trio task is woken (one ``run_sync_soon``) at most once per transition of the
+    deque from empty to non-empty, so a burst costs one wake-up, not one per item.
+    """
+
+    def __init__(self) -> None:
+        self._token = trio.lowlevel.current_trio_token()
+        self._lock = threading.Lock()
+        self._items: deque[T] = deque()
+        self._event = trio.Event()
+        self._closed = False
+        self.pushed = 0
+        """Items pushed so far (for tests and stats)."""
+
+    def push(self, item: T) -> None:
+        """Append ``item``; safe from any thread, never raises, never blocks for long."""
+        with self._lock:
+            was_empty = not self._items
+            self._items.append(item)
+            self.pushed += 1
+            event = self._event
+        if was_empty:
+            self._wake(event)
+
+    def close(self) -> None:
+        """No more items: a waiting :meth:`get_batch` returns what is left, then ``[]``."""
+        with self._lock:
+            self._closed = True
+            event = self._event
+        self._wake(event)
+
+    def _wake(self, event: trio.Event) -> None:
+        try:
+            self._token.run_sync_soon(event.set)
+        except trio.RunFinishedError:
+            pass  # the consuming trio run is over; nobody to wake
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._items)
+
+    def take_nowait(self) -> list[T]:
+        """Everything queued now (possibly nothing), without waiting."""
+        with self._lock:
+            items = list(self._items)
+            self._items.clear()
+        return items
+
+    async def get_batch(self) -> list[T]:
+        """Wait until at least one item is queued (or the inbox is closed) and return all
+        queued items, oldest first; ``[]`` only once closed and empty."""
+        while True:
+            with self._lock:
+                if self._items or self._closed:
+                    items = list(self._items)
+                    self._items.clear()
+                    return items
+                # Invariant: a new event is made only while the deque is empty, under the lock,
+                # so a push after this point sees was_empty and sets this very event.
+                self._event = event = trio.Event()
+            await event.wait()
+
+
+# --------------------------------------------------------------------------- rejections
+
+
+class RejectionCounter:
+    """Counts and logs rejected messages by key expression; never raises.
+
+    The first ``log_first`` rejections on a key are logged at WARNING, then every
+    ``log_every``-th, so a flood of garbage cannot flood the log.
+    """
+
+    def __init__(self, actor: str = "", *, logger: logging.Logger | None = None,
+                 log_first: int = 5, log_every: int = 1000) -> None:
+        self.actor = actor
+        self.total = 0
+        self.by_key: dict[str, int] = {}
+        self.last_error = ""
+        self._log = logger or log
+        self._log_first = log_first
+        self._log_every = log_every
+
+    def reject(self, key_expr: str, reason: str) -> None:
+        """Count one rejected message on ``key_expr``."""
+        n = self.by_key.get(key_expr, 0) + 1
+        self.by_key[key_expr] = n
+        self.total += 1
+        self.last_error = f"{key_expr}: {reason}"
+        if n <= self._log_first or n % self._log_every == 0:
+            self._log.warning("%srejected message #%d on %s: %s",
+                              f"[{self.actor}] " if self.actor else "", n, key_expr, reason)
+
+    def decode(self, key_expr: str, payload: bytes) -> Message | None:
+        """The decoded message, or None (counted and logged) if it is invalid."""
+        try:
+            return decode(key_expr, payload)
+        except MessageError as e:
+            self.reject(key_expr, e.reason)
+        except Exception as e:
+            self.reject(key_expr, f"decoder error {type(e).__name__}: {e}")
+        return None
+
+    def snapshot(self) -> Rejected:
+        """The counts as a :class:`~.schema.Rejected` (for :class:`~.schema.Stats`)."""
+        return Rejected(self.total, dict(self.by_key), self.last_error)
+
+
+# --------------------------------------------------------------------------- subscriber
+
+
+@dataclass(frozen=True, slots=True)
+class Received:
+    """One decoded message."""
+
+    key: str
+    """The key expression it was published on."""
+    msg: Message | None
+    """The message (None when the subscriber does not decode)."""
+    payload: bytes
+    """The raw payload (compact JSON), e.g. for recording without re-encoding."""
+    recv_ns: int
+    """Wall-clock receive time (``time.time_ns()``) in the Zenoh callback."""
+
+
+class TrioSubscriber:
+    """A Zenoh subscriber feeding a trio task, decoding at the edge.
+
+    Create inside trio (it captures the current trio token)::
+
+        with TrioSubscriber(session, keys.run_pattern(run_id), counter=counter) as sub:
+            async for batch in sub:          # list[Received], oldest first
+                for r in batch: ...
+
+    Malformed messages are counted in ``counter`` and left out of the batches. With
+    ``decode=False`` batches hold undecoded :class:`Received` items whose ``msg`` is None.
+    """
+
+    def __init__(self, session: zenoh.Session, key_expr: str, *,
+                 counter: RejectionCounter | None = None, decode: bool = True) -> None:
+        self.key_expr = key_expr
+        self.counter = counter if counter is not None else RejectionCounter()
+        self._decode = decode
+        self._inbox: TrioInbox[tuple[str, bytes, int]] = TrioInbox()
+        self._sub = session.declare_subscriber(key_expr, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Runs on a Zenoh thread (or the publisher's thread): no actor state here.
+        try:
+            self._inbox.push((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+        except Exception:
+            log.exception("subscriber callback failed on %s", self.key_expr)
+
+    @property
+    def received(self) -> int:
+        """Samples that reached the callback (valid or not)."""
+        return self._inbox.pushed
+
+    async def receive_batch(self) -> list[Received]:
+        """Wait for messages and return all that arrived, oldest first (malformed ones are
+        counted and skipped; the list may then be empty). Raises ``trio.EndOfChannel`` once
+        closed and drained."""
+        raw = await self._inbox.get_batch()
+        if not raw and self._inbox.closed:
+            raise trio.EndOfChannel
+        return self._convert(raw)
+
+    def receive_nowait(self) -> list[Received]:
+        """Whatever has arrived, without waiting."""
+        return self._convert(self._inbox.take_nowait())
+
+    def _convert(self, raw: list[tuple[str, bytes, int]]) -> list[Received]:
+        if not self._decode:
+            return [Received(k, None, p, t) for k, p, t in raw]
+        out = []
+        for k, p, t in raw:
+            msg = self.counter.decode(k, p)
+            if msg is not None:
+                out.append(Received(k, msg, p, t))
+        return out
+
+    def __aiter__(self) -> TrioSubscriber:
+        return self
+
+    async def __anext__(self) -> list[Received]:
+        try:
+            return await self.receive_batch()
+        except trio.EndOfChannel:
+            raise StopAsyncIteration from None
+
+    def close(self) -> None:
+        """Undeclare the subscriber; iteration ends after the queued messages."""
+        try:
+            self._sub.undeclare()
+        except zenoh.ZError:  # pragma: no cover - session already closed
+            pass
+        self._inbox.close()
+
+    def __enter__(self) -> TrioSubscriber:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- publisher
+
+
+class Publisher:
+    """Publishes one topic's messages on ``qlap/<run-id>/<topic>``.
+
+    Congestion control follows the topic (:func:`congestion_control`) unless given. With BLOCK,
+    :meth:`put` may block while the network or a slow subscriber catches up: that is the point.
+    """
+
+    def __init__(self, session: zenoh.Session, run_id: str, topic: str, *,
+                 congestion: zenoh.CongestionControl | None = None,
+                 priority: zenoh.Priority | None = None, express: bool | None = None) -> None:
+        self.key = keys.key(run_id, topic)
+        self.topic = topic
+        self.msg_type = TOPIC_TYPES[topic]
+        self.congestion = congestion if congestion is not None else congestion_control(topic)
+        self._pub = session.declare_publisher(
+            self.key, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=self.congestion,
+            priority=priority, express=express)
+        self.sent = 0
+
+    def put(self, msg: Message) -> None:
+        """Encode and publish ``msg``; a message of the wrong type or with a NaN raises
+        (:class:`TypeError` / :class:`~.schema.MessageError`): that is a bug in the caller."""
+        if type(msg) is not self.msg_type:
+            raise TypeError(f"{self.key} carries {self.msg_type.__name__}, "
+                            f"not {type(msg).__name__}")
+        self._pub.put(encode(msg))
+        self.sent += 1
+
+    def put_raw(self, payload: bytes) -> None:
+        """Publish bytes as they are (tests of the decoder's defences)."""
+        self._pub.put(payload)
+
+    def close(self) -> None:
+        try:
+            self._pub.undeclare()
+        except zenoh.ZError:  # pragma: no cover
+            pass
+
+    def __enter__(self) -> Publisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- liveliness
+
+
+def declare_alive(session: zenoh.Session, run_id: str, actor: str) -> zenoh.LivelinessToken:
+    """Declare ``qlap/<run-id>/alive/<actor>``; the token lives until undeclared or the session
+    closes (or the process dies). Use as ``with declare_alive(...):``."""
+    return session.liveliness().declare_token(keys.alive_key(run_id, actor))
+
+
+@dataclass(frozen=True, slots=True)
+class AliveChange:
+    """An actor appearing or disappearing."""
+
+    actor: str
+    """The actor's name (last chunk of its liveliness key)."""
+    alive: bool
+    """True when its token appeared, False when it went away."""
+    key: str
+    """The token's key expression."""
+
+
+class AliveWatcher:
+    """Watches the liveliness tokens of a run from trio.
+
+    ``alive`` is the set of actors currently alive (updated as batches are received);
+    ``await watcher.changes()`` returns the next changes. Tokens that already exist are reported
+    on declaration (``history=True``).
+    """
+
+    def __init__(self, session: zenoh.Session, run_id: str) -> None:
+        self.alive: set[str] = set()
+        self._inbox: TrioInbox[AliveChange] = TrioInbox()
+        self._sub = session.liveliness().declare_subscriber(
+            keys.alive_pattern(run_id), self._on_sample, history=True)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            key = str(sample.key_expr)
+            self._inbox.push(AliveChange(key.rsplit("/", 1)[-1],
+                                         sample.kind == zenoh.SampleKind.PUT, key))
+        except Exception:
+            log.exception("liveliness callback failed")
+
+    async def changes(self) -> list[AliveChange]:
+        """The next changes, oldest first (waits for at least one)."""
+        batch = await self._inbox.get_batch()
+        for c in batch:
+            (self.alive.add if c.alive else self.alive.discard)(c.actor)
+        return batch
+
+    async def wait_until(self, predicate: Callable[[set[str]], bool]) -> set[str]:
+        """Wait until ``predicate(alive)`` holds; return the alive set."""
+        while not predicate(self.alive):
+            await self.changes()
+        return set(self.alive)
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except zenoh.ZError:  # pragma: no cover
+            pass
+        self._inbox.close()
+
+    def __enter__(self) -> AliveWatcher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- late joiners
+
+
+class StateQueryable:
+    """Answers queries on ``key_expr`` with an actor's current state, for late joiners.
+
+    The actor calls :meth:`set` (replace the state under a key) or :meth:`append` (add to a
+    log, e.g. every delta so far) from its own task; the Zenoh query callback only reads an
+    immutable snapshot of pre-encoded payloads, so no actor state is touched from Zenoh's
+    threads.
+    """
+
+    def __init__(self, session: zenoh.Session, key_expr: str) -> None:
+        self.key_expr = key_expr
+        self._entries: tuple[tuple[str, bytes], ...] = ()  # replaced atomically, never mutated
+        self._q = session.declare_queryable(key_expr, self._on_query)
+
+    def set(self, key: str, msg: Message) -> None:
+        """Replace every entry under ``key`` by ``msg``."""
+        payload = encode(msg)
+        self._entries = (*[(k, p) for k, p in self._entries if k != key], (key, payload))
+
+    def append(self, key: str, msg: Message) -> None:
+        """Add ``msg`` under ``key`` after the existing entries."""
+        self._entries = (*self._entries, (key, encode(msg)))
+
+    def clear(self) -> None:
+        self._entries = ()
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        entries = self._entries
+        try:
+            selector = zenoh.KeyExpr(str(query.key_expr))
+            for k, p in entries:
+                if selector.intersects(zenoh.KeyExpr(k)):
+                    query.reply(k, p, encoding=zenoh.Encoding.APPLICATION_JSON)
+        except Exception:
+            log.exception("state query on %s failed", self.key_expr)
+
+    def close(self) -> None:
+        try:
+            self._q.undeclare()
+        except zenoh.ZError:  # pragma: no cover
+            pass
+
+    def __enter__(self) -> StateQueryable:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+_DONE: Any = object()
+
+
+async def fetch(session: zenoh.Session, selector: str, *, query_timeout: float = 2.0,
+                counter: RejectionCounter | None = None) -> list[Received]:
+    """Query ``selector`` (e.g. ``qlap/<run>/delta/**``) and return every decoded reply in
+    arrival order (no consolidation, so a log of deltas arrives whole). Invalid replies are
+    counted in ``counter``; error replies are logged."""
+    counter = counter if counter is not None else RejectionCounter()
+    inbox: TrioInbox[Any] = TrioInbox()
+
+    def on_reply(reply: zenoh.Reply) -> None:
+        try:
+            ok = reply.ok
+            if ok is not None:
+                inbox.push((str(ok.key_expr), ok.payload.to_bytes(), time.time_ns()))
+            else:
+                inbox.push((selector, None, 0))
+        except Exception:
+            log.exception("reply callback failed")
+
+    session.get(selector, zenoh.handlers.Callback(on_reply, lambda: inbox.push(_DONE)),
+                consolidation=zenoh.ConsolidationMode.NONE, timeout=query_timeout)
+    out: list[Received] = []
+    with trio.move_on_after(query_timeout + 1.0):
+        while True:
+            for item in await inbox.get_batch():
+                if item is _DONE:
+                    return out
+                k, p, t = item
+                if p is None:
+                    log.warning("error reply to query %s", selector)
+                    continue
+                msg = counter.decode(k, p)
+                if msg is not None:
+                    out.append(Received(k, msg, p, t))
+    return out

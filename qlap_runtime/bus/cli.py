@@ -1,0 +1,164 @@
+"""``qlap router``, ``qlap record`` and ``qlap echo``: the bus subcommands.
+
+Wire into the main parser with::
+
+    from qlap_runtime.bus.cli import add_bus_commands, run_bus_command, BUS_COMMANDS
+    add_bus_commands(sub)                      # sub = parser.add_subparsers(...)
+    if args.command in BUS_COMMANDS:
+        return run_bus_command(args)
+
+Each command runs until done or until SIGINT/SIGTERM, then closes its session and exits 0
+(2 for a configuration error, 1 when the router cannot be reached).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+from pathlib import Path
+
+import trio
+import zenoh
+
+from .config import BusConfigError, TlsFiles, client_config, config_from_file, router_config
+
+BUS_COMMANDS = ("router", "record", "echo")
+
+
+def _connection_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT",
+                   help="router endpoint, e.g. tcp/127.0.0.1:7447 or tls/host:7447 "
+                        "(repeatable)")
+    p.add_argument("--user", default=None, help="user name (usrpwd authentication)")
+    p.add_argument("--password", default=os.environ.get("QLAP_PASSWORD"),
+                   help="password (default: $QLAP_PASSWORD)")
+    p.add_argument("--tls-ca", type=Path, default=None, help="CA certificate for tls/ endpoints")
+    p.add_argument("--tls-cert", type=Path, default=None, help="client certificate (mutual TLS)")
+    p.add_argument("--tls-key", type=Path, default=None, help="client key (mutual TLS)")
+
+
+def add_bus_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``router``, ``record`` and ``echo`` to a subparsers object."""
+    r = sub.add_parser("router", help="run a Zenoh router for distributed actors",
+                       description="Run a Zenoh router (mode router, no scouting) until "
+                                   "Ctrl-C. Either --config FILE (JSON5, see "
+                                   "examples/router.json5) or --listen ENDPOINT.")
+    r.add_argument("--config", type=Path, default=None, help="zenoh JSON5 config file")
+    r.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint to listen on (default tcp/127.0.0.1:7447; repeatable)")
+
+    rec = sub.add_parser("record", help="record a running agent's bus to an MCAP file",
+                         description="Subscribe to qlap/<run>/** and write every message to an "
+                                     "MCAP file (JSON with JSON Schemas; opens in Foxglove).")
+    _connection_args(rec)
+    rec.add_argument("--out", type=Path, required=True, help="output .mcap file")
+    rec.add_argument("--run", default=None, help="run id to record (default: every run)")
+    rec.add_argument("--duration", type=float, default=None,
+                     help="stop after this many seconds (default: until Ctrl-C)")
+
+    e = sub.add_parser("echo", help="print the messages on a key expression",
+                       description="Print KEY JSON lines for every message on KEY "
+                                   "(e.g. 'qlap/**' or 'qlap/RUN/sense').")
+    _connection_args(e)
+    e.add_argument("key", metavar="KEY", help="key expression")
+    e.add_argument("--count", type=int, default=None, help="stop after N messages")
+    e.add_argument("--raw", action="store_true", help="print payloads without validating")
+
+
+def run_bus_command(args: argparse.Namespace) -> int:
+    """Run a parsed ``router`` / ``record`` / ``echo`` command; return the exit code."""
+    try:
+        if args.command == "router":
+            cfg = (config_from_file(args.config) if args.config is not None
+                   else router_config(args.listen or ["tcp/127.0.0.1:7447"]))
+            return trio.run(_router, cfg)
+        cfg = _client(args)
+        if args.command == "record":
+            return trio.run(_record, cfg, args)
+        if args.command == "echo":
+            return trio.run(_echo, cfg, args)
+    except BusConfigError as e:
+        print(f"qlap {args.command}: {e}", file=sys.stderr)
+        return 2
+    except zenoh.ZError as e:
+        print(f"qlap {args.command}: {e}", file=sys.stderr)
+        return 1
+    raise ValueError(f"not a bus command: {args.command!r}")
+
+
+def _client(args: argparse.Namespace) -> zenoh.Config:
+    tls = None
+    if args.tls_ca is not None or args.tls_cert is not None:
+        tls = TlsFiles(ca=args.tls_ca, certificate=args.tls_cert, private_key=args.tls_key,
+                       mtls=args.tls_cert is not None)
+    return client_config(args.connect, tls=tls, user=args.user,
+                         password=args.password if args.user else None)
+
+
+async def _until_signal(stop: trio.Event, *, task_status: trio.TaskStatus[None]) -> None:
+    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+        task_status.started()
+        async for _ in signals:
+            stop.set()
+            return
+
+
+async def serve_router(cfg: zenoh.Config, stop_event: trio.Event, *,
+                       task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED) -> None:
+    """Hold a router session open until ``stop_event`` is set (the launcher's in-process
+    router for the ``processes`` placement, or ``qlap router``)."""
+    with zenoh.open(cfg):
+        task_status.started()
+        await stop_event.wait()
+
+
+async def _router(cfg: zenoh.Config) -> int:
+    stop = trio.Event()
+    async with trio.open_nursery() as nursery:
+        await nursery.start(_until_signal, stop)
+        await nursery.start(serve_router, cfg, stop)
+        print(f"qlap router: listening on {cfg.get_json('listen/endpoints')}; Ctrl-C to stop",
+              file=sys.stderr)
+    return 0
+
+
+async def _record(cfg: zenoh.Config, args: argparse.Namespace) -> int:
+    from .recorder import record
+
+    stop = trio.Event()
+    async with trio.open_nursery() as nursery:
+        await nursery.start(_until_signal, stop)
+        if args.duration is not None:
+            async def timer() -> None:
+                await trio.sleep(args.duration)
+                stop.set()
+            nursery.start_soon(timer)
+        summary = await record(cfg, args.run, args.out, stop)
+        nursery.cancel_scope.cancel()
+    print(f"qlap record: {summary.messages} messages on {len(summary.by_topic)} topics to "
+          f"{summary.path} ({summary.rejected} rejected)", file=sys.stderr)
+    return 0
+
+
+async def _echo(cfg: zenoh.Config, args: argparse.Namespace) -> int:
+    from .recorder import echo
+
+    stop = trio.Event()
+    async with trio.open_nursery() as nursery:
+        await nursery.start(_until_signal, stop)
+        await echo(cfg, args.key, stop, raw=args.raw, limit=args.count)
+        nursery.cancel_scope.cancel()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Standalone entry point: ``python -m qlap_runtime.bus.cli router|record|echo ...``."""
+    p = argparse.ArgumentParser(prog="qlap-bus")
+    add_bus_commands(p.add_subparsers(dest="command", required=True))
+    return run_bus_command(p.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

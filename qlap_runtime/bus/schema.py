@@ -1,0 +1,506 @@
+"""Every message that crosses the bus, in one module (DESIGN.md §3 rule 5; docs/bus.md).
+
+A message is a frozen dataclass with a docstring under each field and a ``version`` field (the
+schema version of its type, checked on decode). The topic of the key expression says which type
+a payload must be (:data:`TOPIC_TYPES`), so no type tag travels.
+
+Wire format: compact UTF-8 JSON object, one key per field, ``allow_nan=False``. Sequences are
+JSON arrays and decode to tuples; ``float`` fields accept JSON integers. :func:`decode`
+validates everything (JSON syntax, object shape, required and unknown fields, every field's type,
+finite numbers, the version, per-type rules) and raises :class:`MessageError` carrying the key
+expression. :func:`json_schema` gives the JSON Schema (draft 2020-12) of each type, used as the
+MCAP schema by the recorder. No pickle.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import itertools
+import json
+import math
+import textwrap
+import types
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cache
+from typing import Any, Literal
+
+from ..qlap.delta import Delta
+from . import keys
+
+JSON = Any
+"""A JSON value (null, bool, number, string, array, object) with finite numbers."""
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid message for its key expression."""
+
+    def __init__(self, key_expr: str, reason: str) -> None:
+        super().__init__(f"{key_expr}: {reason}")
+        self.key_expr = key_expr
+        self.reason = reason
+
+
+# --------------------------------------------------------------------------- messages
+
+
+@dataclass(frozen=True)
+class Sense:
+    """``sense(t)``: the world's raw observation at step t (topic ``sense``)."""
+
+    step: int
+    """Agent step t (0, 1, ...)."""
+    values: dict[str, float]
+    """Raw real value of every observed variable, by variable name."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+@dataclass(frozen=True)
+class QState:
+    """``qstate(t)``: the qualitative state and events at step t (topic ``qstate``)."""
+
+    step: int
+    """Agent step t."""
+    values: dict[str, int]
+    """Qualitative value (index into the variable's quantity space) by variable name."""
+    events: tuple[tuple[str, int, int], ...] = ()
+    """Events X → x at t as (variable name, qualitative value, direction); direction is +1
+    for ↑, −1 for ↓ on magnitudes, else 0 (§3.2)."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+@dataclass(frozen=True)
+class Motor:
+    """``motor(t)``: the motor values the executor chose at step t (topic ``motor``)."""
+
+    step: int
+    """Agent step t whose ``qstate`` these motor values answer."""
+    values: dict[str, float]
+    """Motor value by motor variable name."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+DeltaKind = Literal["dbn", "landmarks", "plans"]
+
+
+@dataclass(frozen=True)
+class DeltaMsg:
+    """A knowledge delta (DESIGN.md §3.2) on ``delta/dbn``, ``delta/landmarks`` or
+    ``delta/plans``; the kind must match the topic."""
+
+    kind: DeltaKind
+    """Which knowledge changed: ``dbn``, ``landmarks`` or ``plans``."""
+    delta: dict[str, JSON]
+    """The payload of :meth:`qlap_runtime.qlap.delta.Delta.to_json` (version, computed_at,
+    apply_at, ops); decoding checks that :meth:`Delta.from_json` accepts it."""
+    version: int = 1
+    """Schema version of this message type."""
+
+    @classmethod
+    def of(cls, kind: DeltaKind, delta: Delta) -> DeltaMsg:
+        """Wrap a :class:`Delta`."""
+        return cls(kind, delta.to_json())
+
+    def to_delta(self) -> Delta:
+        """The :class:`Delta` carried (operations as tuples)."""
+        return Delta.from_json(self.delta)
+
+
+@dataclass(frozen=True)
+class CallList:
+    """The executor's call list at step t (topic ``calllist``; §5.5, Appendix F)."""
+
+    step: int
+    """Agent step t."""
+    actions: tuple[str, ...]
+    """Names of the actions on the call list, outermost first."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+@dataclass(frozen=True)
+class IACChoice:
+    """One IAC choice of an action to practise (topic ``iac``; §6.1, Appendix E)."""
+
+    step: int
+    """Agent step at which the choice was made."""
+    action: str
+    """Name of the chosen action (empty when babbling)."""
+    weight: float
+    """The chosen action's weight."""
+    n_applicable: int
+    """How many actions were applicable (could be chosen)."""
+    babbling: bool
+    """True when the agent babbled instead of practising an action."""
+    weights: dict[str, float] = field(default_factory=dict)
+    """Weight of every applicable action, by name."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+@dataclass(frozen=True)
+class Rejected:
+    """Counts of messages rejected by one actor's decoder (malformed, wrongly typed, unknown
+    version, unknown key)."""
+
+    total: int = 0
+    """Messages rejected since the actor started."""
+    by_key: dict[str, int] = field(default_factory=dict)
+    """Rejections by key expression."""
+    last_error: str = ""
+    """The most recent rejection's reason, with its key expression."""
+
+
+@dataclass(frozen=True)
+class Stats:
+    """An actor's runtime counters (topic ``stats``), published every few seconds."""
+
+    step: int
+    """Latest step the actor has processed."""
+    actor: str = ""
+    """Name of the reporting actor."""
+    steps_per_s: float = 0.0
+    """Steps per second over the last reporting interval."""
+    waits: int = 0
+    """Lockstep: times the world waited for a delta that was late (DESIGN.md §4)."""
+    late_ticks: int = 0
+    """Realtime: ticks that started later than their deadline."""
+    missed_ticks: int = 0
+    """Realtime: ticks skipped altogether."""
+    lateness_p50_ms: float = 0.0
+    """Realtime: median tick lateness in milliseconds."""
+    lateness_p99_ms: float = 0.0
+    """Realtime: 99th percentile of tick lateness in milliseconds."""
+    restarts: int = 0
+    """Supervisor: actor restarts so far."""
+    rejected: Rejected = field(default_factory=Rejected)
+    """This actor's rejected messages."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+ControlCommand = Literal["pause", "resume", "step", "goal", "save"]
+
+
+@dataclass(frozen=True)
+class Control:
+    """A command to the running agent (topic ``control``)."""
+
+    command: ControlCommand
+    """``pause``, ``resume``, ``step`` (advance n steps while paused), ``goal`` (set a goal
+    ``{"var": name, "value": q}``) or ``save`` (write a checkpoint)."""
+    args: dict[str, JSON] = field(default_factory=dict)
+    """Arguments of the command, e.g. ``{"n": 10}`` for step, ``{"path": ...}`` for save."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+Message = Sense | QState | Motor | DeltaMsg | CallList | IACChoice | Stats | Control
+
+TOPIC_TYPES: dict[str, type] = {
+    "sense": Sense, "qstate": QState, "motor": Motor, "delta/dbn": DeltaMsg,
+    "delta/landmarks": DeltaMsg, "delta/plans": DeltaMsg, "calllist": CallList,
+    "iac": IACChoice, "stats": Stats, "control": Control}
+"""The message type each topic carries."""
+
+MESSAGE_TYPES: tuple[type, ...] = (Sense, QState, Motor, DeltaMsg, CallList, IACChoice, Stats,
+                                   Control)
+
+SUPPORTED_VERSIONS: dict[type, frozenset[int]] = {t: frozenset({1}) for t in MESSAGE_TYPES}
+"""Versions :func:`decode` accepts, per type."""
+
+assert set(TOPIC_TYPES) == set(keys.TOPICS)
+
+
+# --------------------------------------------------------------------------- encoding
+
+
+def encode(msg: Message) -> bytes:
+    """Compact UTF-8 JSON of ``msg``. A NaN or infinity raises :class:`MessageError`."""
+    try:
+        return json.dumps(_to_obj(msg), separators=(",", ":"), ensure_ascii=False,
+                          allow_nan=False).encode()
+    except (ValueError, TypeError) as e:
+        raise MessageError(f"<{type(msg).__name__}>", f"cannot encode: {e}") from None
+
+
+def _to_obj(msg: Any) -> dict[str, Any]:
+    out = {}
+    for name in _field_names(type(msg)):
+        v = getattr(msg, name)
+        out[name] = _to_obj(v) if dataclasses.is_dataclass(v) else v
+    return out
+
+
+@cache
+def _field_names(cls: type) -> tuple[str, ...]:
+    return tuple(f.name for f in dataclasses.fields(cls))
+
+
+def decode(key_expr: str, payload: bytes | bytearray | memoryview | str) -> Message:
+    """The message that ``payload`` holds, validated against the type of ``key_expr``'s topic.
+
+    Raises :class:`MessageError` (with the key expression) for an unknown key, bad UTF-8 or
+    JSON, NaN/infinity, a missing, unknown or wrongly typed field, or an unknown version.
+    """
+    key_expr = str(key_expr)
+    try:
+        topic = keys.topic_of(key_expr)
+    except keys.BusKeyError as e:
+        raise MessageError(key_expr, str(e)) from None
+    cls = TOPIC_TYPES.get(topic)
+    if cls is None:
+        raise MessageError(key_expr, f"topic {topic!r} carries no messages")
+    try:
+        text = payload if isinstance(payload, str) else bytes(payload).decode("utf-8")
+        obj = json.loads(text, parse_constant=_reject_constant)
+    except (UnicodeDecodeError, ValueError) as e:
+        raise MessageError(key_expr, f"not UTF-8 JSON: {e}") from None
+    try:
+        msg = _build(cls, obj, "")
+        _check_rules(msg, topic)
+    except _Invalid as e:
+        raise MessageError(key_expr, f"invalid {cls.__name__}: {e}") from None
+    return msg
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not allowed")
+
+
+class _Invalid(Exception):
+    pass
+
+
+def _build(cls: type, obj: Any, path: str) -> Any:
+    if not isinstance(obj, dict):
+        raise _Invalid(f"{path or 'message'} must be a JSON object, got {_tname(obj)}")
+    fields = _fields(cls)
+    if "version" in fields:
+        v = obj.get("version")
+        if type(v) is not int:
+            raise _Invalid(f"{path}version must be an integer, got {v!r}")
+        if v not in SUPPORTED_VERSIONS[cls]:
+            raise _Invalid(f"unknown version {v} (supported: {sorted(SUPPORTED_VERSIONS[cls])})")
+    unknown = set(obj) - set(fields)
+    if unknown:
+        raise _Invalid(f"unknown field(s) {sorted(unknown)}")
+    kwargs = {}
+    for name, (check, required) in fields.items():
+        if name in obj:
+            kwargs[name] = check(obj[name], path + name)
+        elif required:
+            raise _Invalid(f"missing field {path + name!r}")
+    return cls(**kwargs)
+
+
+def _check_rules(msg: Any, topic: str) -> None:
+    if isinstance(msg, DeltaMsg):
+        expected = topic.removeprefix("delta/")
+        if msg.kind != expected:
+            raise _Invalid(f"kind {msg.kind!r} on topic {topic!r} (expected {expected!r})")
+        try:
+            d = Delta.from_json(msg.delta)
+        except (KeyError, TypeError, ValueError) as e:
+            raise _Invalid(f"delta: {type(e).__name__}: {e}") from None
+        if set(msg.delta) != {"version", "computed_at", "apply_at", "ops"} or any(
+                type(msg.delta[k]) is not int for k in ("version", "computed_at", "apply_at")):
+            raise _Invalid("delta must hold exactly integer version, computed_at, apply_at "
+                           "and a list ops")
+        if not isinstance(msg.delta["ops"], list) or len(d.ops) != len(msg.delta["ops"]):
+            raise _Invalid("delta.ops must be a list of operations")
+
+
+# --------------------------------------------------------------------------- type checkers
+
+Checker = Callable[[Any, str], Any]
+
+
+def _tname(v: Any) -> str:
+    return {dict: "object", list: "array", str: "string", bool: "boolean", int: "integer",
+            float: "number", type(None): "null"}.get(type(v), type(v).__name__)
+
+
+def _check_int(v: Any, path: str) -> int:
+    if type(v) is not int:
+        raise _Invalid(f"{path} must be an integer, got {_tname(v)} {v!r}")
+    return v
+
+
+def _check_float(v: Any, path: str) -> float:
+    t = type(v)
+    if t is float:
+        if not math.isfinite(v):
+            raise _Invalid(f"{path} must be finite, got {v!r}")
+        return v
+    if t is int:
+        return float(v)
+    raise _Invalid(f"{path} must be a number, got {_tname(v)} {v!r}")
+
+
+def _check_str(v: Any, path: str) -> str:
+    if type(v) is not str:
+        raise _Invalid(f"{path} must be a string, got {_tname(v)} {v!r}")
+    return v
+
+
+def _check_bool(v: Any, path: str) -> bool:
+    if type(v) is not bool:
+        raise _Invalid(f"{path} must be true or false, got {_tname(v)} {v!r}")
+    return v
+
+
+def _check_json(v: Any, path: str) -> Any:
+    # json.loads already rejected NaN/Infinity literals; huge literals (1e999) parse to inf.
+    t = type(v)
+    if t is float and not math.isfinite(v):
+        raise _Invalid(f"{path} must be finite, got {v!r}")
+    if t is list:
+        for i, x in enumerate(v):
+            _check_json(x, f"{path}[{i}]")
+    elif t is dict:
+        for k, x in v.items():
+            _check_json(x, f"{path}.{k}")
+    return v
+
+
+@cache
+def _checker(tp: Any) -> Checker:
+    if tp is int:
+        return _check_int
+    if tp is float:
+        return _check_float
+    if tp is str:
+        return _check_str
+    if tp is bool:
+        return _check_bool
+    if tp is Any:
+        return _check_json
+    if dataclasses.is_dataclass(tp):
+        return lambda v, path: _build(tp, v, path + ".")
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Literal:
+        allowed = args
+
+        def check_literal(v: Any, path: str) -> Any:
+            if type(v) is not str or v not in allowed:
+                raise _Invalid(f"{path} must be one of {list(allowed)}, got {v!r}")
+            return v
+        return check_literal
+    if origin is dict:
+        kc, vc = _checker(args[0]), _checker(args[1])
+
+        def check_dict(v: Any, path: str) -> dict:
+            if type(v) is not dict:
+                raise _Invalid(f"{path} must be an object, got {_tname(v)}")
+            return {kc(k, f"{path} key"): vc(x, f"{path}[{k!r}]") for k, x in v.items()}
+        return check_dict
+    if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+        ic = _checker(args[0])
+
+        def check_seq(v: Any, path: str) -> tuple:
+            if type(v) is not list:
+                raise _Invalid(f"{path} must be an array, got {_tname(v)}")
+            return tuple(ic(x, f"{path}[{i}]") for i, x in enumerate(v))
+        return check_seq
+    if origin is tuple:
+        ics = [_checker(a) for a in args]
+
+        def check_tuple(v: Any, path: str) -> tuple:
+            if type(v) is not list or len(v) != len(ics):
+                raise _Invalid(f"{path} must be an array of {len(ics)} items, got {v!r}")
+            return tuple(c(x, f"{path}[{i}]") for i, (c, x) in enumerate(zip(ics, v, strict=True)))
+        return check_tuple
+    raise TypeError(f"no checker for {tp!r}")
+
+
+@cache
+def _fields(cls: type) -> dict[str, tuple[Checker, bool]]:
+    hints = typing.get_type_hints(cls, globalns=globals())
+    out = {}
+    for f in dataclasses.fields(cls):
+        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        out[f.name] = (_checker(hints[f.name]), required)
+    return out
+
+
+# --------------------------------------------------------------------------- JSON schema
+
+
+def json_schema(cls: type) -> dict[str, Any]:
+    """The JSON Schema (draft 2020-12) of a message type, with each field's docstring as its
+    description."""
+    schema = _object_schema(cls)
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["$id"] = f"qlap/{cls.__name__}/v{max(SUPPORTED_VERSIONS.get(cls, {1}))}"
+    return schema
+
+
+def _object_schema(cls: type) -> dict[str, Any]:
+    hints = typing.get_type_hints(cls, globalns=globals())
+    docs = _field_docs(cls)
+    props: dict[str, Any] = {}
+    required = []
+    for f in dataclasses.fields(cls):
+        s = _type_schema(hints[f.name])
+        if f.name in docs:
+            s["description"] = docs[f.name]
+        if f.name == "version" and cls in SUPPORTED_VERSIONS:
+            s["enum"] = sorted(SUPPORTED_VERSIONS[cls])
+        props[f.name] = s
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            required.append(f.name)
+    return {"title": cls.__name__, "description": inspect.cleandoc(cls.__doc__ or ""),
+            "type": "object", "properties": props, "required": required,
+            "additionalProperties": False}
+
+
+def _type_schema(tp: Any) -> dict[str, Any]:
+    simple = {int: "integer", float: "number", str: "string", bool: "boolean"}
+    if tp in simple:
+        return {"type": simple[tp]}
+    if tp is Any:
+        return {}
+    if dataclasses.is_dataclass(tp):
+        return _object_schema(tp)  # type: ignore[arg-type]
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Literal:
+        return {"type": "string", "enum": list(args)}
+    if origin is dict:
+        return {"type": "object", "additionalProperties": _type_schema(args[1])}
+    if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+        return {"type": "array", "items": _type_schema(args[0])}
+    if origin is tuple:
+        return {"type": "array", "prefixItems": [_type_schema(a) for a in args],
+                "minItems": len(args), "maxItems": len(args)}
+    if isinstance(tp, types.UnionType):  # pragma: no cover - no unions in messages yet
+        return {"anyOf": [_type_schema(a) for a in typing.get_args(tp)]}
+    raise TypeError(f"no schema for {tp!r}")
+
+
+@cache
+def _field_docs(cls: type) -> dict[str, str]:
+    """The docstring under each field (``x: int`` followed by a string literal)."""
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    except (OSError, TypeError):  # pragma: no cover - source not available
+        return {}
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    docs = {}
+    for a, b in itertools.pairwise(body):
+        if (isinstance(a, ast.AnnAssign) and isinstance(a.target, ast.Name)
+                and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant)
+                and isinstance(b.value.value, str)):
+            docs[a.target.id] = inspect.cleandoc(b.value.value)
+    return docs
+
+
+def schema_name(cls: type) -> str:
+    """The MCAP schema name of a message type, e.g. ``qlap.Sense``."""
+    return f"qlap.{cls.__name__}"
