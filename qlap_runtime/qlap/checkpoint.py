@@ -94,7 +94,8 @@ def learner_state(learner: ModelLearner) -> tuple[dict[str, Any], dict[str, np.n
         "mag_active": [[y, [d.id for d in ds]] for y, ds in learner._mag_active.items()],
         "pending_deltas": [dict(d.to_json(), applied=d.applied)
                            for d in learner.pending_deltas],
-        "applied": learner.applied,
+        "applied": learner.applied, "applied_count": learner.applied_count,
+        "splits": [list(x) for x in learner.splits],
         "reliable_actions": sorted([list(a) for a in learner.reliable_actions]),
     }
     return meta, arrays
@@ -189,6 +190,125 @@ def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Mode
         Delta.from_json(d).mark_applied() if d.get("applied") else Delta.from_json(d)
         for d in meta["pending_deltas"])
     learner.applied = list(meta["applied"])
+    learner.applied_count = int(meta.get("applied_count", 0))
+    learner.splits = [(int(a), int(b)) for a, b in meta.get("splits", [])]
     learner.reliable_actions = {(int(a), int(b)) for a, b in meta["reliable_actions"]}
     learner._reindex()
     return learner
+
+
+# ---------------------------------------------------------------------------------------------
+# The whole agent (ch. 5–6): the learner's files plus agent.json / agent.npz
+# ---------------------------------------------------------------------------------------------
+AGENT_FORMAT = "qlap-agent"
+AGENT_VERSION = 1
+
+
+def save_agent(agent: Any, directory: str | Path) -> Path:
+    """Write the agent's full state (learner, actions, plans, call list, RNG) atomically."""
+    from .mdp import q_to_state
+
+    directory = Path(directory)
+    save_learner(agent.learner, directory)
+    arrays: dict[str, np.ndarray] = {}
+    plans = []
+    for pid in sorted(agent.plans):
+        pl = agent.plans[pid]
+        plans.append({"id": pl.id, "dbn_id": pl.dbn_id, "kind": pl.kind, "created": pl.created,
+                      "context_o": list(pl.context_o), "call_n": pl.call_n,
+                      "call_head": pl.call_head, "calls": pl.calls,
+                      "successes": pl.successes, "q": q_to_state(pl.q)})
+        arrays[f"plan.{pid}.call_x"] = pl.call_x
+        arrays[f"plan.{pid}.call_ok"] = pl.call_ok
+        arrays[f"plan.{pid}.cpt_s"] = pl.cpt_s
+        arrays[f"plan.{pid}.cpt_f"] = pl.cpt_f
+        arrays[f"plan.{pid}.traces"] = pl.sarsa.e if pl.sarsa is not None else np.zeros(0)
+    c = agent.counters
+    meta = {
+        "format": AGENT_FORMAT, "version": AGENT_VERSION,
+        "seed_state": agent.rng.bit_generator.state,
+        "babbler": agent.babbler.to_state(), "actions": agent.actions.to_json(),
+        "plans": plans, "next_plan_id": agent.next_plan_id,
+        "call_list": [f.to_json() for f in agent.call_list], "motor": agent.motor,
+        "mode": agent.mode, "hold_until": agent.hold_until,
+        "goal": list(agent.goal) if agent.goal is not None else None,
+        "goal_idle": agent.goal_idle, "learning": agent.learning,
+        "iac_log": [ch.to_dict() for ch in agent.iac_log],
+        "counters": {k: v for k, v in c.__dict__.items()},
+        "self_vars": sorted(agent.self_vars), "step_count": agent.step_count,
+        "seen_applied": agent._seen_applied,
+    }
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write_bytes(directory / "agent.npz", buf.getvalue())
+    atomic_write_json(directory / "agent.json", meta)
+    return directory
+
+
+def load_agent(directory: str | Path) -> Any:
+    """Rebuild an agent that continues exactly as the saved one would."""
+    from .actions import ActionTable
+    from .agent import Agent, AgentCounters, Frame
+    from .curiosity import IACChoice
+    from .mdp import SarsaLambda, q_from_state
+    from .planner import Plan
+
+    directory = Path(directory)
+    learner = load_learner(directory)
+    jpath = directory / "agent.json"
+    try:
+        meta = json.loads(jpath.read_text())
+        with np.load(directory / "agent.npz", allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError as exc:
+        raise CheckpointError(f"{directory}: not an agent checkpoint ({exc.filename} missing)"
+                              ) from None
+    except Exception as exc:
+        raise CheckpointError(f"{directory}: corrupt agent checkpoint ({exc})") from None
+    if meta.get("format") != AGENT_FORMAT or meta.get("version") != AGENT_VERSION:
+        raise CheckpointError(f"{jpath}: not a {AGENT_FORMAT} v{AGENT_VERSION} checkpoint")
+    try:
+        agent = Agent(learner.table, learner.params)
+        agent.learner = learner
+        agent.rng.bit_generator.state = meta["seed_state"]
+        agent.babbler.load_state(meta["babbler"])
+        agent.actions = ActionTable.from_json(meta["actions"], learner.params)
+        sizes = list(learner.perception.events.sizes)
+        for d in meta["plans"]:
+            dbn = learner.dbns[int(d["dbn_id"])]
+            pl = Plan(int(d["id"]), dbn, learner.table, learner.params, int(d["created"]),
+                      len(learner.table))
+            pid = pl.id
+            pl.context_o = tuple(d["context_o"])
+            pl.call_n, pl.call_head = int(d["call_n"]), int(d["call_head"])
+            pl.calls, pl.successes = int(d["calls"]), int(d["successes"])
+            pl.call_x = arrays[f"plan.{pid}.call_x"].astype(float)
+            pl.call_ok = arrays[f"plan.{pid}.call_ok"].astype(bool)
+            pl.cpt_s = arrays[f"plan.{pid}.cpt_s"].astype(float)
+            pl.cpt_f = arrays[f"plan.{pid}.cpt_f"].astype(float)
+            agent.plans[pid] = pl
+            agent._rebuild(pl, fresh=True)
+            pl.q = q_from_state(d["q"])
+            traces = arrays[f"plan.{pid}.traces"]
+            pl.sarsa = SarsaLambda(pl.q, learner.params,
+                                   traces.astype(float) if traces.size else None)
+            del sizes
+            list(learner.perception.events.sizes)
+        agent.next_plan_id = int(meta["next_plan_id"])
+        agent.call_list = [Frame.from_json(f) for f in meta["call_list"]]
+        agent.motor = {k: float(v) for k, v in meta["motor"].items()}
+        agent.mode, agent.hold_until = meta["mode"], int(meta["hold_until"])
+        agent.goal = tuple(meta["goal"]) if meta["goal"] is not None else None
+        agent.goal_idle, agent.learning = meta["goal_idle"], bool(meta["learning"])
+        agent.iac_log.extend(
+            IACChoice(c["step"], tuple(c["action"]) if c["action"] else None, c["weight"],
+                      c["n_applicable"], c["babbling"], tuple(c["weights"]))
+            for c in meta["iac_log"])
+        agent.counters = AgentCounters(**meta["counters"])
+        agent.self_vars = set(meta["self_vars"])
+        agent.step_count = int(meta["step_count"])
+        agent._seen_applied = int(meta["seen_applied"])
+    except (KeyError, ValueError, TypeError, IndexError) as exc:
+        raise CheckpointError(f"{directory}: inconsistent agent checkpoint "
+                              f"({type(exc).__name__}: {exc})") from None
+    return agent

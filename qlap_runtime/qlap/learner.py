@@ -49,6 +49,8 @@ class ModelLearner:
         self.version = 0
         self.pending_deltas: deque[Delta] = deque()
         self.applied: list[dict] = []          # short log of applied deltas (for knowledge())
+        self.applied_count = 0                  # deltas applied so far (consumers poll it)
+        self.splits: list[tuple[int, int]] = []  # (var, split) of landmarks added, for consumers
         # Set by the acting side (ch. 5–6); empty while only the learner runs.
         self.reliable_actions: set[tuple[int, int]] = set()
         self._expiry: deque[tuple[int, DBN, list]] = deque()
@@ -243,6 +245,7 @@ class ModelLearner:
             self._refresh_reliability()
             for op in delta.ops:
                 self._apply_op(op)
+        self.applied_count += 1
         self.applied.append({"version": delta.version, "computed_at": delta.computed_at,
                              "applied_at": self.step, "ops": len(delta.ops)})
         del self.applied[:-50]
@@ -600,6 +603,7 @@ class ModelLearner:
             return                                  # overlaps since computed: skip, deterministic
         old_index = self.perception.events
         split = self.perception.add_landmark(var, lm)
+        self.splits.append((var, split))
         new_index = self.perception.events
         # How landmarks change DBNs (§4.4.1): remap events on var, refresh CPTs.
         for d_id in sorted(self.dbns):

@@ -1,0 +1,672 @@
+"""The whole QLAP agent: Algorithm 2 as one synchronous, deterministic loop (ch. 5–6).
+
+:class:`Agent` composes the model learner (ch. 4), the plans (§5.2–5.4) and the executor: the
+call list of Algorithms 6 and 7 (Appendix F), termination (§5.2.3, §5.5.2), Sarsa(λ) and Dyna
+(§5.2.2), exploration by motor babbling and IAC (§6.1, App. E), the developmental restrictions
+(§6.2), targeted learning (§6.3), self (§6.4) and goal mode (§7.2.1).
+
+One step (:meth:`Agent.step`): the percept of step t is the world's sensed values plus the motor
+values currently applied (those commanded at t − 1); the learner observes it (and runs or
+applies batches on schedule); plans are converted after a batch is applied (line 15); then the
+executor returns the motor command of step t.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .actions import ActionKey, ActionTable, motor_value_for, plan_slots, targeted
+from .babble import Babbler
+from .curiosity import IACChoice, action_weight, choose_action, choose_plan, plan_weight
+from .dbn import CHANGE, DBN, model_stats
+from .learner import ModelLearner
+from .mdp import Role, greedy_action, sarsa_reward
+from .params import Params
+from .perception import Percept
+from .planner import Plan, creates_cycle, dbn_rel_state
+from .probability import prob_above
+from .variables import Kind, VariableTable
+
+RUN, SUCCESS, FAIL = "run", "success", "fail"
+CHANGE_MINUS, CHANGE_PLUS = 0, 2
+
+
+@dataclass
+class Frame:
+    """One action in the call list (§5.5.1); frame i + 1 is the sub-action of frame i."""
+
+    key: ActionKey
+    """The action a(v, q)."""
+    started: int
+    """Step at which it was called."""
+    is_motor: bool = False
+    plan_id: int = -1
+    """The plan chosen to perform it (non-motor actions)."""
+    sub: int = -1
+    """Index of the plan's current MDP action; −1 none."""
+    sub_state: int = -1
+    """Plan state in which the current sub-action was called (for Sarsa)."""
+    sub_started: int = 0
+    calls: int = 0
+    """Action calls made by the plan so far (≤ 5, §5.2.3)."""
+    wait_until: int = -1
+    """After the antecedent of a change plan succeeded: wait until this step (Alg. 7)."""
+    last_change: int = 0
+    """Last step at which the plan's state or a self variable changed (stuck rule)."""
+    last_sig: tuple = ()
+    call_x: np.ndarray | None = None
+    """The real state at the call (second-order DBN statistics, §5.4.1)."""
+    practised: bool = False
+    """The top-level action chosen for practice (IAC) or as the goal."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"key": list(self.key), "started": self.started, "is_motor": self.is_motor,
+                "plan_id": self.plan_id, "sub": self.sub, "sub_state": self.sub_state,
+                "sub_started": self.sub_started, "calls": self.calls,
+                "wait_until": self.wait_until, "last_change": self.last_change,
+                "last_sig": list(self.last_sig), "practised": self.practised,
+                "call_x": None if self.call_x is None else
+                [None if np.isnan(v) else float(v) for v in self.call_x]}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> Frame:
+        cx = d["call_x"]
+        return cls(tuple(d["key"]), d["started"], d["is_motor"], d["plan_id"], d["sub"],
+                   d["sub_state"], d["sub_started"], d["calls"], d["wait_until"],
+                   d["last_change"], tuple(d["last_sig"]),
+                   None if cx is None else np.array([np.nan if v is None else v for v in cx]),
+                   d["practised"])
+
+
+@dataclass
+class AgentCounters:
+    """Counts for the summary and the UI."""
+
+    practice_calls: int = 0
+    babble_commands: int = 0
+    successes: int = 0
+    failures: int = 0
+    plans_created: int = 0
+    plans_removed: int = 0
+    call_list_interrupts: int = 0
+    rejected_observations: int = 0
+    extra: dict[str, int] = field(default_factory=dict)
+
+
+class Agent:
+    """QLAP: learner + plans + executor, stepping in lockstep with a world (Algorithm 2)."""
+
+    def __init__(self, variables: VariableTable | Any, params: Params | None = None,
+                 seed: int = 0) -> None:
+        self.params = params or Params()
+        self.learner = ModelLearner(variables, self.params)
+        self.table = self.learner.table
+        self.rng = np.random.default_rng(seed)
+        self.babbler = Babbler(self.table, self.params, self.rng)
+        self.actions = ActionTable(self.params)
+        self.actions.sync(self._sizes())
+        self.plans: dict[int, Plan] = {}
+        self.next_plan_id = 0
+        self.call_list: list[Frame] = []
+        self.motors = self.table.of_kind(Kind.MOTOR)
+        self.motor = {m.name: 0.0 for m in self.motors}
+        self.mode = "babble"          # babble | command | practice | hold | goal | idle
+        self.hold_until = -1
+        self.goal: ActionKey | None = None
+        self.goal_idle = "babble"      # what goal mode does with no plan: babble | zero
+        self.learning = True
+        self.iac_log: deque[IACChoice] = deque(maxlen=200)
+        self.counters = AgentCounters()
+        self.self_vars: set[int] = set()
+        self.step_count = -1
+        self._seen_applied = 0
+        self._last_percept: Percept | None = None
+
+    # ------------------------------------------------------------------------------------------
+    # Algorithm 2, one step
+    # ------------------------------------------------------------------------------------------
+    def step(self, t: int, obs: Mapping[str, float]) -> dict[str, float]:
+        """Sense step t (the world's values), learn, and return the motor command of step t."""
+        full = dict(obs)
+        full.update(self.motor)
+        if self.learning:
+            p = self.learner.observe(t, full)
+        else:
+            x = self.learner.perception.vector(full)
+            p = self.learner.perception.perceive(t, x, copy=False)
+        self.step_count = t
+        self._last_percept = p
+        if self.learner.applied_count != self._seen_applied:
+            self._seen_applied = self.learner.applied_count
+            self._after_batch(t)
+        self._act(p)
+        return dict(self.motor)
+
+    # ------------------------------------------------------------------------------------------
+    # knowledge changes: line 15 of Algorithm 2 and the consequences of new landmarks
+    # ------------------------------------------------------------------------------------------
+    def _sizes(self) -> list[int]:
+        return list(self.learner.perception.events.sizes)
+
+    def _after_batch(self, t: int) -> None:
+        splits, self.learner.splits = self.learner.splits, []
+        if splits and self.call_list:
+            self._interrupt()
+        for var, split in splits:
+            self.actions.on_landmark(var, split)
+            if self.goal is not None and self.goal[0] == var and self.goal[1] > split:
+                self.goal = (var, self.goal[1] + 2)
+        self.actions.sync(self._sizes())
+        # Plans whose DBN disappeared are removed; the others follow their DBN's structure.
+        for pid in sorted(self.plans):
+            plan = self.plans[pid]
+            dbn = self.learner.dbns.get(plan.dbn_id)
+            if dbn is None or plan.stats_removed(self.params):
+                self._remove_plan(pid)
+        self._update_plan_contexts()
+        self._convert_dbns_to_plans(t)
+        for plan in self.plans.values():
+            self._rebuild(plan)
+        self._update_self()
+
+    def _interrupt(self) -> None:
+        """Knowledge changed under the running call list: end it without recording."""
+        self.call_list.clear()
+        self.counters.call_list_interrupts += 1
+        if self.mode in ("practice", "goal"):
+            self.mode = "idle"
+
+    def _rel_action(self, var: int, value: int) -> float:
+        if self.table[var].kind is Kind.MOTOR:
+            return 1.0                                   # primitive: always achieved (§5.5)
+        key = (var, value)
+        return self.actions[key].rel(self.params.prior) if key in self.actions else 0.5
+
+    def _rebuild(self, plan: Plan, fresh: bool = False) -> None:
+        dbn = self.learner.dbns[plan.dbn_id]
+        sizes = self._sizes()
+        plan.build(dbn, sizes, self._rel_action, dbn_rel_state(dbn, sizes, self.params.prior),
+                   fresh=fresh)
+
+    def _refresh(self, plan: Plan) -> None:
+        dbn = self.learner.dbns.get(plan.dbn_id)
+        if dbn is None:
+            return
+        sizes = self._sizes()
+        plan.refresh(self._rel_action, dbn_rel_state(dbn, sizes, self.params.prior),
+                     dyna=not self.params.ablations.no_dyna)
+
+    def _update_plan_contexts(self) -> None:
+        """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4)."""
+        sizes = self._sizes()
+        quantize = self.learner.perception.quantize_var
+        for pid in sorted(self.plans):
+            plan = self.plans[pid]
+            dbn = self.learner.dbns[plan.dbn_id]
+            plan.recount(quantize, sizes)
+            cands = [v for v in self.learner._candidates(dbn) if v not in dbn.context]
+            plan.update_context(cands, quantize, sizes)
+
+    def _plan_edges(self) -> set[tuple[ActionKey, ActionKey]]:
+        edges = set()
+        for plan in self.plans.values():
+            dbn = self.learner.dbns[plan.dbn_id]
+            edges.add(((dbn.consequent.var, dbn.consequent.value),
+                       (dbn.antecedent.var, dbn.antecedent.value)))
+        return edges
+
+    def _antecedent_achievable(self, dbn: DBN) -> bool:
+        """§6.2.2 criterion 1: a sufficiently reliable plan achieves the antecedent event."""
+        if self.params.ablations.nrp:
+            return True
+        a = dbn.antecedent
+        if self.table[a.var].kind is Kind.MOTOR:
+            return True
+        for plan in self.plans.values():
+            if plan.action == (a.var, a.value):
+                d = self.learner.dbns.get(plan.dbn_id)
+                if d is not None and d.ever_reliable:
+                    return True
+        return False
+
+    def _convert_dbns_to_plans(self, t: int) -> None:
+        """Line 15 of Algorithm 2 with the restrictions of §6.2.1–6.2.2 and §6.3."""
+        p = self.params
+        targeted_mask = targeted(self.learner.perception.satisfied_fraction(), p)
+        index = self.learner.perception.events
+        dbn_of_plan = {plan.dbn_id for plan in self.plans.values()}
+        edges = self._plan_edges()
+        for dbn_id in sorted(self.learner.dbns):
+            dbn = self.learner.dbns[dbn_id]
+            if dbn_id in dbn_of_plan:
+                continue
+            key = (dbn.consequent.var, dbn.consequent.value)
+            if key not in self.actions or self.actions[key].sufficiently_reliable(p):
+                continue                                              # §6.2.1 item 2
+            if dbn.kind == CHANGE:
+                cons_id = index.cons_of_event[index.encode(dbn.consequent)]
+                tgt = bool(targeted_mask[cons_id]) if cons_id >= 0 else False
+                if not (dbn.ever_reliable or (tgt and self._reliable_at(dbn, p.theta_sr_targeted))):
+                    continue                                          # §5.2, §6.3
+            if not self._antecedent_achievable(dbn):
+                continue
+            edge = (key, (dbn.antecedent.var, dbn.antecedent.value))
+            if creates_cycle(edges, edge):
+                continue                                              # §6.2.2 criterion 2
+            mine = [pl for pl in self.plans.values() if pl.action == key]
+            if dbn.kind != CHANGE:
+                # Magnitude actions have their two plans, one from each side (§5.3).
+                if any(pl.goal.direction == dbn.consequent.direction for pl in mine):
+                    continue
+            else:
+                change_plans = sorted((pl for pl in mine if pl.kind == CHANGE), key=lambda x: x.id)
+                slots = plan_slots([pl.plan_stats() for pl in change_plans], p,
+                                   self.actions[key])
+                for i in slots.remove:
+                    self._remove_plan(change_plans[i].id)
+                if not slots.accepts_new:
+                    continue
+                if slots.free <= 0 and slots.replaceable is not None:
+                    self._remove_plan(change_plans[slots.replaceable].id)
+            self._add_plan(dbn, t)
+            edges.add(edge)
+
+    def _reliable_at(self, dbn: DBN, theta: float) -> bool:
+        st = model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), self.params)
+        if st.brel is None:
+            return False
+        i = int(np.argmax((dbn.cpt_s + 1) / (dbn.cpt_s + dbn.cpt_f + 2) * (dbn.cpt_s >= 5)))
+        return prob_above(theta, float(dbn.cpt_s[i]), float(dbn.cpt_f[i]), self.params.prior,
+                          self.params.beta_confidence)
+
+    def _add_plan(self, dbn: DBN, t: int) -> Plan:
+        plan = Plan(self.next_plan_id, dbn, self.table, self.params, t, len(self.table))
+        self.next_plan_id += 1
+        self.plans[plan.id] = plan
+        dbn.is_plan = True
+        self._rebuild(plan, fresh=True)
+        self.counters.plans_created += 1
+        return plan
+
+    def _remove_plan(self, pid: int) -> None:
+        plan = self.plans.pop(pid)
+        dbn = self.learner.dbns.get(plan.dbn_id)
+        if dbn is not None:
+            dbn.is_plan = False
+        if any(f.plan_id == pid for f in self.call_list):
+            self._interrupt()
+        self.counters.plans_removed += 1
+
+    def _update_self(self) -> None:
+        """§6.4: change (and nominal) variables the agent controls reliably and quickly."""
+        k = self.learner.k
+        self.self_vars = {v.index for v in self.table if v.kind in (Kind.CHANGE, Kind.NOMINAL)
+                          and self.actions.is_self(v.index, v.kind, k)}
+        reliable = {key for key, st in self.actions.items()
+                    if self.table[key[0]].kind is not Kind.MOTOR and st.reliable}
+        self.learner.reliable_actions = reliable                    # §6.2.1
+
+    # ------------------------------------------------------------------------------------------
+    # choosing what to do (§6.1)
+    # ------------------------------------------------------------------------------------------
+    def set_goal(self, var: int | str, value: int | str, idle: str = "babble") -> ActionKey:
+        """Goal mode (§7.2.1): call a(var, value) and execute; ``idle`` when it has no plan."""
+        if isinstance(var, str):
+            var = self.table.index(var)
+        v = self.table[var]
+        if isinstance(value, str):
+            labels = {Kind.CHANGE: {"-": 0, "[-]": 0, "0": 1, "[0]": 1, "+": 2, "[+]": 2},
+                      Kind.NOMINAL: {name: i for i, name in enumerate(v.values)}}
+            try:
+                value = labels[v.kind][value]
+            except KeyError:
+                raise ValueError(f"cannot name value {value!r} of {v.name} ({v.kind.value}); "
+                                 "give its index") from None
+        size = self._sizes()[var]
+        if not 0 <= int(value) < size:
+            raise ValueError(f"value {value} outside Q({v.name}) (0..{size - 1})")
+        if idle not in ("babble", "zero"):
+            raise ValueError(f"idle must be 'babble' or 'zero', got {idle!r}")
+        self.goal = (var, int(value))
+        self.goal_idle = idle
+        self.call_list.clear()
+        self.mode = "idle"
+        return self.goal
+
+    def clear_goal(self) -> None:
+        self.goal = None
+        self.call_list.clear()
+        self.mode = "idle"
+
+    def _act(self, p: Percept) -> None:
+        t = p.step
+        if self.goal is not None:
+            self._act_goal(p)
+            return
+        if t < self.params.babble_steps:
+            self.mode = "babble"
+            self.motor, _ = self.babbler.step()
+            return
+        if self.mode == "command":
+            self.motor, done = self.babbler.step()
+            if done:
+                self.mode = "idle"
+            return
+        if self.mode == "hold":
+            if t < self.hold_until:
+                return
+            self.mode = "idle"
+        if self.mode == "practice" and self.call_list:
+            status = self._process(0, p)
+            if status == RUN:
+                return
+            top = self._finish_top(status, p)
+            if status == SUCCESS and self.table[top.key[0]].kind is Kind.CHANGE:
+                self.mode = "hold"                     # keep the last motor value k steps
+                self.hold_until = t + self.learner.k
+                return
+            self.mode = "idle"
+        self._choose_exploration(p)
+
+    def _act_goal(self, p: Percept) -> None:
+        assert self.goal is not None
+        if self.call_list:
+            status = self._process(0, p)
+            if status == RUN:
+                return
+            self._finish_top(status, p)
+        if self._achieved(self.goal, p):
+            return                                      # the trial's success test ends it
+        status = self._call(self.goal, p, practised=True)
+        if status == FAIL:
+            self.call_list.clear()
+            if self.goal_idle == "zero":
+                self.motor = dict.fromkeys(self.motor, 0.0)
+            else:
+                self.motor, _ = self.babbler.step()
+            self.mode = "idle"
+        else:
+            self.mode = "goal"
+
+    def _choose_exploration(self, p: Percept) -> None:
+        t = p.step
+        if self.rng.random() < self.params.babble_probability:
+            self._start_command(t, 0)
+            return
+        applicable, weights = self._applicable(p)
+        if not applicable:
+            self._start_command(t, 0)
+            return
+        key, probs = choose_action(applicable, weights, self.rng,
+                                   no_iac=self.params.ablations.no_iac)
+        assert key is not None
+        i = applicable.index(key)
+        self.iac_log.append(IACChoice(t, key, float(probs[i]), len(applicable), False,
+                                      tuple(float(x) for x in probs)))
+        self.motor = dict.fromkeys(self.motor, 0.0)     # rest posture for a new practice
+        self.counters.practice_calls += 1
+        status = self._call(key, p, practised=True)
+        if status == FAIL:
+            self.call_list.clear()
+            self.mode = "idle"
+        else:
+            self.mode = "practice"
+
+    def _start_command(self, t: int, n_applicable: int) -> None:
+        self.iac_log.append(IACChoice(t, None, 0.0, n_applicable, True))
+        self.counters.babble_commands += 1
+        self.mode = "command"
+        self.motor, done = self.babbler.step()
+        if done:
+            self.mode = "idle"
+
+    def _applicable(self, p: Percept) -> tuple[list[ActionKey], list[float]]:
+        """§6.1.1: actions not achieved now that could be performed, with their IAC weights."""
+        out, weights = [], []
+        by_action: dict[ActionKey, list[Plan]] = {}
+        for plan in self.plans.values():
+            by_action.setdefault(plan.action, []).append(plan)
+        for key in sorted(by_action):
+            if self._achieved(key, p):
+                continue
+            plans = self._usable_plans(key, p, by_action[key])
+            if not plans:
+                continue
+            idx = self._pick_plan(plans, p)
+            rel_os = None if idx is None else plans[idx].rel_state(self._o_cell(plans[idx], p.x))
+            out.append(key)
+            weights.append(action_weight(self.actions[key], rel_os, self.params))
+        return out, weights
+
+    # ------------------------------------------------------------------------------------------
+    # the call list (Algorithms 6 and 7)
+    # ------------------------------------------------------------------------------------------
+    def _achieved(self, key: ActionKey, p: Percept) -> bool:
+        return int(p.q[key[0]]) == key[1]
+
+    def _usable_plans(self, key: ActionKey, p: Percept, plans: list[Plan]) -> list[Plan]:
+        """Plans of a(v, q) usable in this state: magnitude plans from the current side."""
+        var, q = key
+        if self.table[var].kind is not Kind.MAGNITUDE:
+            return sorted(plans, key=lambda pl: pl.id)
+        now = int(p.q[var])
+        side = 1 if now < q else -1
+        return sorted((pl for pl in plans if pl.goal.direction == side), key=lambda pl: pl.id)
+
+    def _o_cell(self, plan: Plan, x: np.ndarray) -> int:
+        cell = 0
+        sizes = self.learner.perception.events.sizes
+        for v in plan.context_o:
+            q = self.learner._value_of(v, x[v])
+            if q < 0:
+                return -1
+            cell = cell * sizes[v] + q
+        return cell
+
+    def _pick_plan(self, plans: list[Plan], p: Percept) -> int | None:
+        """§6.1.2: ε-greedy on w = rel(r, s)·rel(o, s); plans whose antecedent action is in
+        the call list are excluded."""
+        in_list = {f.key for f in self.call_list}
+        w, excluded = [], []
+        for plan in plans:
+            dbn = self.learner.dbns[plan.dbn_id]
+            excluded.append((dbn.antecedent.var, dbn.antecedent.value) in in_list)
+            cell = self.learner._cell_of(dbn, p.x)
+            s = dbn.cpt_s[cell] if 0 <= cell < len(dbn.cpt_s) else 0.0
+            f = dbn.cpt_f[cell] if 0 <= cell < len(dbn.cpt_f) else 0.0
+            rel_rs = (s + self.params.prior) / (s + f + 2 * self.params.prior)
+            w.append(plan_weight(rel_rs, plan.rel_state(self._o_cell(plan, p.x))))
+        return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
+
+    def _call(self, key: ActionKey, p: Percept, practised: bool = False) -> str:
+        """Algorithm 6: push a(v, q) on the call list; RUN or FAIL (the frame is then gone)."""
+        var, q = key
+        t = p.step
+        v = self.table[var]
+        if v.kind is Kind.MOTOR:
+            value = motor_value_for(self.learner.perception.spaces[var], q, v.low, v.high,
+                                    self.rng)
+            self.motor[v.name] = value
+            self.call_list.append(Frame(key, t, is_motor=True, practised=practised))
+            return RUN
+        plans = self._usable_plans(key, p, [pl for pl in self.plans.values() if pl.action == key])
+        idx = self._pick_plan(plans, p) if plans else None
+        if idx is None:
+            self.actions.record(key, False, None)            # §5.5.2: no (usable) plan
+            return FAIL
+        plan = plans[idx]
+        frame = Frame(key, t, plan_id=plan.id, last_change=t, call_x=p.x.copy(),
+                      practised=practised)
+        self.call_list.append(frame)
+        depth = len(self.call_list) - 1
+        assert plan.sarsa is not None
+        plan.sarsa.reset()
+        status = self._next_sub(depth, p, first=True)
+        if status == FAIL:
+            self._terminate(depth, FAIL, p)
+        return status
+
+    def _plan_state(self, plan: Plan, p: Percept) -> int | None:
+        assert plan.space is not None
+        return plan.space.index_from_full(p.q)
+
+    def _next_sub(self, i: int, p: Percept, first: bool = False) -> str:
+        """Choose and call the plan's next action by its policy (ε-greedy, §6.1.3)."""
+        f = self.call_list[i]
+        plan = self.plans[f.plan_id]
+        s2 = self._plan_state(plan, p)
+        if s2 is None:
+            return FAIL
+        goal = bool(plan.model is not None and plan.model.goal[s2])
+        if f.calls >= self.params.option_max_calls:
+            self._sarsa(plan, f, p, s2, goal, None)
+            return FAIL                                          # §5.2.3 resource limit
+        a2 = greedy_action(plan.q, s2, self.rng, self.params.policy_epsilon)
+        if not first:
+            self._sarsa(plan, f, p, s2, goal, a2)
+        if a2 is None:
+            return FAIL                                          # §5.5.2 plan rule 2
+        f.sub, f.sub_state, f.sub_started = a2, s2, p.step
+        if first and plan.sarsa is not None and not self.params.ablations.no_sarsa:
+            plan.sarsa.start(s2, a2)
+        act = plan.actions[a2]
+        if act.role is Role.WAIT:
+            return RUN                                           # hold the motors (§5.3.1)
+        key2 = (act.var, act.value)
+        if any(fr.key == key2 for fr in self.call_list):
+            return FAIL                                          # §5.5.2 plan rule 3
+        f.calls += 1
+        status = self._call(key2, p)
+        return status                                            # FAIL: rule 4
+
+    def _sarsa(self, plan: Plan, f: Frame, p: Percept, s2: int, goal: bool,
+               a2: int | None) -> None:
+        if self.params.ablations.no_sarsa or plan.sarsa is None or f.sub < 0:
+            return
+        r = sarsa_reward(goal, p.step - f.sub_started, self.params)
+        if a2 is not None and not plan.model.applicable[s2, a2]:  # type: ignore[union-attr]
+            a2 = None
+        plan.sarsa.update(f.sub_state, f.sub, r, s2, a2)
+
+    def _process(self, i: int, p: Percept) -> str:
+        """Algorithm 7 for frame i (and, recursively, those below it)."""
+        f = self.call_list[i]
+        t = p.step
+        if f.is_motor:
+            return SUCCESS if (t > f.started and self._achieved(f.key, p)) else RUN
+        plan = self.plans.get(f.plan_id)
+        if plan is None:
+            return FAIL
+        if t > f.started and self._achieved(f.key, p):
+            self._end_sub(i, p, goal=True)
+            return SUCCESS
+        if self._stuck_or_out_of_time(f, plan, p):
+            self._end_sub(i, p, goal=False)
+            return FAIL
+        if f.wait_until >= 0:                           # waiting k steps after the antecedent
+            if t < f.wait_until:
+                return RUN
+            f.wait_until = -1
+            return self._next_sub(i, p)
+        act = plan.actions[f.sub] if f.sub >= 0 else None
+        if act is not None and act.role is Role.WAIT:
+            dbn = self.learner.dbns[plan.dbn_id]
+            if self._achieved((dbn.antecedent.var, dbn.antecedent.value), p):
+                return RUN                              # still moving the right way
+            return self._next_sub(i, p)
+        if i + 1 >= len(self.call_list):
+            return self._next_sub(i, p)
+        status = self._process(i + 1, p)
+        if status == RUN:
+            return RUN
+        sub = self.call_list[i + 1]
+        self._terminate(i + 1, status, p)
+        dbn = self.learner.dbns[plan.dbn_id]
+        if (status == SUCCESS and plan.kind == CHANGE
+                and sub.key == (dbn.antecedent.var, dbn.antecedent.value)):
+            f.wait_until = t + self.learner.k           # Alg. 7 lines 18–20
+            return RUN
+        return self._next_sub(i, p)
+
+    def _stuck_or_out_of_time(self, f: Frame, plan: Plan, p: Percept) -> bool:
+        t = p.step
+        if t - f.started >= self.params.option_max_steps:
+            return True
+        s = self._plan_state(plan, p)
+        sig = (s, *(int(p.q[v]) for v in sorted(self.self_vars)))
+        if sig != f.last_sig:
+            f.last_sig, f.last_change = sig, t
+            return False
+        return t - f.last_change >= self.params.stuck_steps
+
+    def _end_sub(self, i: int, p: Percept, goal: bool) -> None:
+        """The plan of frame i ends: terminal Sarsa update for its running sub-action."""
+        f = self.call_list[i]
+        plan = self.plans.get(f.plan_id)
+        if plan is not None and f.sub >= 0:
+            s2 = self._plan_state(plan, p)
+            if s2 is not None:
+                self._sarsa(plan, f, p, s2, goal, None)
+
+    def _terminate(self, i: int, status: str, p: Percept) -> Frame:
+        """Frame i terminated: the frames below end with it (a list, not a stack, §5.5.1);
+        record rel(a), rel(o) and refresh the plan's model (Dyna)."""
+        f = self.call_list[i]
+        del self.call_list[i:]
+        success = status == SUCCESS
+        if not f.is_motor:
+            self.actions.record(f.key, success, p.step - f.started if success else None)
+            plan = self.plans.get(f.plan_id)
+            if plan is not None and f.call_x is not None:
+                plan.record_call(f.call_x, success, self._o_cell(plan, f.call_x))
+                self._refresh(plan)
+        return f
+
+    def _finish_top(self, status: str, p: Percept) -> Frame:
+        top = self._terminate(0, status, p)
+        if status == SUCCESS:
+            self.counters.successes += 1
+        else:
+            self.counters.failures += 1
+        return top
+
+    # ------------------------------------------------------------------------------------------
+    # reading
+    # ------------------------------------------------------------------------------------------
+    def action_label(self, key: ActionKey) -> str:
+        return f"a({self.table[key[0]].name}, {self.learner.value_label(*key)})"
+
+    def call_list_labels(self) -> list[str]:
+        return [self.action_label(f.key) for f in self.call_list]
+
+    def knowledge(self) -> dict[str, Any]:
+        """Landmarks, DBNs (with plan flags), actions with their plans (knowledge.json)."""
+        k = self.learner.knowledge()
+        by_action: dict[ActionKey, list[Plan]] = {}
+        for plan in self.plans.values():
+            by_action.setdefault(plan.action, []).append(plan)
+        acts = []
+        for key, st in self.actions.items():
+            plans = sorted(by_action.get(key, []), key=lambda x: x.id)
+            if st.calls == 0 and not plans:
+                continue
+            acts.append({
+                "variable": self.table[key[0]].name, "value": self.learner.value_label(*key),
+                "index": key[1], "label": self.action_label(key),
+                "reliability": round(st.rel(self.params.prior), 12), "calls": st.calls,
+                "successes": st.successes, "sufficiently_reliable": st.reliable,
+                "plans": [{"id": pl.id, "dbn": pl.dbn_id,
+                           "dbn_label": self.learner.dbn_label(self.learner.dbns[pl.dbn_id]),
+                           "kind": pl.kind, "rel_o": round(pl.rel(), 12), "calls": pl.calls,
+                           "context_o": [self.table[v].name for v in pl.context_o],
+                           "states": pl.space.n_states if pl.space else 0}
+                          for pl in plans]})
+        k["actions"] = acts
+        k["self"] = sorted(self.table[v].name for v in self.self_vars)
+        return k
+

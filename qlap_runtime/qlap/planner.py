@@ -1,0 +1,240 @@
+"""Plans: DBNs turned into small MDPs and options (§5.2–5.4, §6.2.2).
+
+A :class:`Plan` is the option o = ⟨I, π, β⟩ made from one change or magnitude DBN: its state
+space Q(C_o) × Q(C) × Q(X) × Q(Y), its action set and transition model (:mod:`.mdp`), a Q-table
+learned by value iteration and then refined by Sarsa(λ) and Dyna, and the statistics of the
+second-order DBN r_o² = ⟨C_o : call(t, o) ⇒ succeeds(t, o)⟩ that give rel(o), rel(o, s) and the
+extra context C_o.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from .actions import PlanStats
+from .context import update_context
+from .dbn import CHANGE, DBN, ModelStats, context_cells, counts_by_cell, model_stats
+from .mdp import (
+    MDPAction,
+    PlanSpec,
+    PlanStateSpace,
+    SarsaLambda,
+    TransitionModel,
+    build_actions,
+    dyna_sweep,
+    value_iteration,
+)
+from .params import Params
+from .variables import Event, Kind, VariableTable
+
+RelAction = Callable[[int, int], float]
+"""rel(a) of the action a(var, value)."""
+
+
+class Plan:
+    """One option for the action a(Y, y), built from DBN ``dbn_id`` (§5.2, §5.3)."""
+
+    def __init__(self, plan_id: int, dbn: DBN, table: VariableTable, params: Params,
+                 created: int, n_vars: int) -> None:
+        self.id = plan_id
+        self.dbn_id = dbn.id
+        self.kind = dbn.kind
+        self.created = created
+        self.params = params
+        g = dbn.consequent
+        self.goal = Event(g.var, g.value, g.direction if dbn.kind != CHANGE else 0)
+        self.action = (g.var, g.value)
+        self.context_o: tuple[int, ...] = ()
+        # Second-order DBN statistics (§5.4.1): calls with the state at the call, and outcome.
+        cap = params.stored_activations
+        self.call_x = np.full((cap, n_vars), np.nan)
+        self.call_ok = np.zeros(cap, dtype=bool)
+        self.call_n = 0
+        self.call_head = 0
+        self.calls = 0
+        self.successes = 0
+        self.cpt_s = np.zeros(1)
+        self.cpt_f = np.zeros(1)
+        self.q = np.zeros((1, 1))
+        self.sarsa: SarsaLambda | None = None
+        self.model: TransitionModel | None = None
+        self.space: PlanStateSpace | None = None
+        self.actions: list[MDPAction] = []
+        self.spec: PlanSpec | None = None
+        self._magnitudes = frozenset(v.index for v in table if v.kind is Kind.MAGNITUDE)
+        self._dot_of = {v.source: v.index for v in table if v.kind is Kind.CHANGE}
+
+    # -- structure ------------------------------------------------------------------------------
+    def build(self, dbn: DBN, sizes: Mapping[int, int] | list[int], rel_action: RelAction,
+              rel_model: Callable[[Mapping[int, int]], float], fresh: bool = False) -> None:
+        """(Re)build the MDP from the DBN's current structure; keep Q if the space is unchanged.
+
+        A changed state space (new landmarks, contexts) is re-planned by value iteration.
+        """
+        g = dbn.consequent                       # landmarks may have renumbered it
+        self.goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
+        self.action = (g.var, g.value)
+        ante = dbn.antecedent
+        spec = PlanSpec(goal=self.goal, antecedent=ante, magnitude_plan=self.kind != CHANGE,
+                        magnitude_vars=self._magnitudes)
+        groups = [self.context_o, dbn.context, [ante.var], [self.goal.var]]
+        space = PlanStateSpace.from_groups(groups, {v: int(sizes[v]) for g in groups for v in g})
+        actions = build_actions(space, spec)
+        same = (not fresh and self.space is not None and space == self.space
+                and actions == self.actions and spec == self.spec)
+        self.spec, self.space, self.actions = spec, space, actions
+        self.model = self._model(rel_action, rel_model)
+        if not same:
+            self.q = value_iteration(self.model, self.params)
+            self.sarsa = SarsaLambda(self.q, self.params)
+
+    def _model(self, rel_action: RelAction, rel_model) -> TransitionModel:
+        assert self.space is not None
+        assert self.spec is not None
+        goal_key = self.action
+        dot_of = self._dot_of
+        mags = self._magnitudes
+
+        def regress(state: Mapping[int, int], a: MDPAction) -> bool:
+            # §5.2.1 rule 2: reaching a(v, q) on a magnitude would need the very change this
+            # plan is for (e.g. ⟨{Y}: X→x ⇒ Ẏ→[+]⟩ with Y below q needs Ẏ = [+]).
+            if a.var not in mags or a.var not in state:
+                return False
+            now = state[a.var]
+            if now == a.value:
+                return False
+            need = (dot_of.get(a.var, -1), 2 if now < a.value else 0)
+            return need == goal_key
+
+        rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
+        return TransitionModel.build(self.space, self.actions, self.spec, rel_a, rel_model,
+                                     regress)
+
+    def refresh(self, rel_action: RelAction, rel_model, dyna: bool) -> None:
+        """New statistics: rebuild T_i and, unless ablated, one Dyna sweep (§5.2.2, eq. 5.10)."""
+        self.model = self._model(rel_action, rel_model)
+        if dyna:
+            dyna_sweep(self.q, self.model, self.params)
+
+    # -- second-order statistics (§5.4) ------------------------------------------------------
+    def record_call(self, x: np.ndarray, success: bool, cell: int) -> None:
+        cap = self.call_x.shape[0]
+        self.call_x[self.call_head] = x
+        self.call_ok[self.call_head] = success
+        self.call_head = (self.call_head + 1) % cap
+        self.call_n = min(self.call_n + 1, cap)
+        self.calls += 1
+        self.successes += int(success)
+        if 0 <= cell < len(self.cpt_s):
+            if success:
+                self.cpt_s[cell] += 1
+            else:
+                self.cpt_f[cell] += 1
+
+    def stored_calls(self) -> tuple[np.ndarray, np.ndarray]:
+        cap = self.call_x.shape[0]
+        if self.call_n < cap:
+            return self.call_x[: self.call_n], self.call_ok[: self.call_n]
+        order = np.r_[self.call_head:cap, 0:self.call_head]
+        return self.call_x[order], self.call_ok[order]
+
+    @property
+    def failures(self) -> int:
+        return self.calls - self.successes
+
+    def plan_stats(self) -> PlanStats:
+        """Counts as :class:`~.actions.PlanStats` (for the plan limits of §6.2.2)."""
+        return PlanStats(self.calls, self.successes, self.calls - self.successes)
+
+    def stats_removed(self, params: Params) -> bool:
+        """rel(o) fell below 0.05 after enough calls (§6.2.2)."""
+        return self.plan_stats().should_remove(params)
+
+    def rel(self, prior: float | None = None) -> float:
+        """rel(o): overall reliability of the option (prior α = β = 1 unless given)."""
+        p = self.params.prior if prior is None else prior
+        total = self.calls + 2 * p
+        return (self.successes + p) / total if total > 0 else 0.0
+
+    def stats(self) -> ModelStats:
+        return model_stats(self.cpt_s, self.cpt_f, len(self.context_o), self.params)
+
+    def recount(self, quantize: Callable[[int, np.ndarray], np.ndarray],
+                sizes: Mapping[int, int] | list[int]) -> None:
+        X, ok = self.stored_calls()
+        ctx = self.context_o
+        n_cells = int(np.prod([sizes[v] for v in ctx])) if ctx else 1
+        cells = context_cells([quantize(v, X[:, v]) for v in ctx], [sizes[v] for v in ctx]) \
+            if ctx else np.zeros(len(ok), dtype=np.int64)
+        self.cpt_s, self.cpt_f = counts_by_cell(cells, ok, n_cells)
+
+    def update_context(self, candidates: list[int], quantize, sizes) -> bool:
+        """Algorithm 3 on the second-order DBN; True if C_o changed (§5.4.2)."""
+        X, ok = self.stored_calls()
+        if not len(ok):
+            return False
+        cache: dict[int, np.ndarray] = {}
+
+        def evaluate(ctx: tuple[int, ...]) -> ModelStats:
+            for v in ctx:
+                if v not in cache:
+                    cache[v] = quantize(v, X[:, v])
+            sz = [sizes[v] for v in ctx]
+            cells = context_cells([cache[v] for v in ctx], sz) if ctx else \
+                np.zeros(len(ok), dtype=np.int64)
+            s, f = counts_by_cell(cells, ok, int(np.prod(sz)) if ctx else 1)
+            return model_stats(s, f, len(ctx), self.params)
+
+        new = update_context(self.context_o, candidates, evaluate, self.params)
+        if new is None:
+            return False
+        self.context_o = new
+        self.recount(quantize, sizes)
+        return True
+
+    def rel_state(self, x_cell: int) -> float:
+        """rel(o, s) from the second-order CPT cell of the state (prior 1)."""
+        if not 0 <= x_cell < len(self.cpt_s):
+            return self.rel()
+        s, f = self.cpt_s[x_cell], self.cpt_f[x_cell]
+        return float((s + self.params.prior) / (s + f + 2 * self.params.prior))
+
+
+def dbn_rel_state(dbn: DBN, sizes, prior: float) -> Callable[[Mapping[int, int]], float]:
+    """rel(r, s): the DBN's CPT cell for the context values of state s (prior α = β = 1)."""
+    ctx = dbn.context
+    s_arr, f_arr = dbn.cpt_s, dbn.cpt_f
+
+    def rel(state: Mapping[int, int]) -> float:
+        cell = 0
+        for v in ctx:
+            cell = cell * sizes[v] + state[v]
+        if cell >= len(s_arr):
+            return 0.5
+        s, f = s_arr[cell], f_arr[cell]
+        return float((s + prior) / (s + f + 2 * prior))
+
+    return rel
+
+
+def creates_cycle(edges: set[tuple[tuple[int, int], tuple[int, int]]],
+                  new: tuple[tuple[int, int], tuple[int, int]]) -> bool:
+    """Would adding the edge consequent → antecedent close a cycle in the action graph (§6.2.2)?"""
+    src, dst = new
+    if src == dst:
+        return True
+    adj: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for a, b in edges:
+        adj.setdefault(a, []).append(b)
+    stack, seen = [dst], {dst}
+    while stack:
+        node = stack.pop()
+        if node == src:
+            return True
+        for nxt in adj.get(node, ()):
+            if nxt not in seen:
+                seen.add(nxt)
+                stack.append(nxt)
+    return False
