@@ -302,6 +302,18 @@ class Publisher:
         self._pub.put(encode(msg))
         self.sent += 1
 
+    @property
+    def matched(self) -> bool:
+        """True when some subscriber matches this key (zenoh's matching status)."""
+        status = self._pub.matching_status
+        return bool(getattr(status, "matching", status))
+
+    async def wait_matched(self, poll: float = 0.005) -> None:
+        """Wait until a subscriber matches (e.g. the world before its first ``sense`` in
+        lockstep, so that step 0 is not published into the void). Wrap in ``trio.fail_after``."""
+        while not self.matched:  # noqa: ASYNC110 - zenoh reports matching by polling or callback
+            await trio.sleep(poll)
+
     def put_raw(self, payload: bytes) -> None:
         """Publish bytes as they are (tests of the decoder's defences)."""
         self._pub.put(payload)

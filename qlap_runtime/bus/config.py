@@ -174,7 +174,8 @@ def client_config(connect: Sequence[str] | str, *, tls: TlsFiles | None = None,
         _set(cfg, "transport/link/tls/root_ca_certificate",
              _file(tls.ca, "tls.ca (root_ca_certificate)"))
         _set(cfg, "transport/link/tls/verify_name_on_connect", tls.verify_name)
-        if tls.mtls:
+        if tls.mtls:  # the client only presents its certificate with enable_mtls set
+            _set(cfg, "transport/link/tls/enable_mtls", True)
             _set(cfg, "transport/link/tls/connect_certificate",
                  _file(tls.certificate, "tls.certificate (connect_certificate)"))
             _set(cfg, "transport/link/tls/connect_private_key",

@@ -107,3 +107,26 @@ def topic_of(key_expr: str) -> str:
 def new_run_id() -> str:
     """A fresh run id: UTC time and 4 random hex digits, e.g. ``20260122T101500-3fa2``."""
     return time.strftime("%Y%m%dT%H%M%S", time.gmtime()) + "-" + os.urandom(2).hex()
+
+
+WRITERS: dict[str, tuple[str, ...]] = {
+    "world": ("sense",),
+    "perception": ("qstate",),
+    "contingency": ("delta/dbn",),
+    "landmarks": ("delta/landmarks",),
+    "planner": ("delta/plans",),
+    "executor": ("motor", "calllist", "iac"),
+    "tui": ("control",),
+    "supervisor": ("control",),
+    "recorder": (),
+}
+"""The topics each actor publishes (every actor also publishes ``stats`` and its liveliness
+token). The ACL of :func:`~.config.acl_own_keys` is built from this."""
+
+
+def actor_put_keys(actor: str, run_id: str = "*") -> list[str]:
+    """Key expressions ``actor`` may put on: its topics, ``stats`` and its liveliness token
+    (``run_id='*'``: in any run)."""
+    run = run_id if run_id == "*" else validate_run_id(run_id)
+    own = [f"{ROOT}/{run}/{t}" for t in WRITERS.get(validate_actor(actor), ())]
+    return [*own, f"{ROOT}/{run}/stats", f"{ROOT}/{run}/{ALIVE}/{actor}"]

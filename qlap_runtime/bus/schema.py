@@ -283,7 +283,9 @@ def _build(cls: type, obj: Any, path: str) -> Any:
         raise _Invalid(f"{path or 'message'} must be a JSON object, got {_tname(obj)}")
     fields = _fields(cls)
     if "version" in fields:
-        v = obj.get("version")
+        if "version" not in obj:
+            raise _Invalid(f"missing field {path + 'version'!r}")
+        v = obj["version"]
         if type(v) is not int:
             raise _Invalid(f"{path}version must be an integer, got {v!r}")
         if v not in SUPPORTED_VERSIONS[cls]:

@@ -1,0 +1,144 @@
+"""The trio <-> Zenoh bridge over real sessions (embedded; a router and clients on loopback)."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+import trio
+import zenoh
+
+from qlap_runtime.bus import keys
+from qlap_runtime.bus.bridge import (
+    AliveWatcher,
+    Publisher,
+    RejectionCounter,
+    StateQueryable,
+    TrioInbox,
+    TrioSubscriber,
+    declare_alive,
+    fetch,
+)
+from qlap_runtime.bus.config import client_config
+from qlap_runtime.bus.schema import CallList, DeltaMsg, Motor, Sense
+from qlap_runtime.qlap.delta import Delta
+
+N_BURST = 20_000
+
+
+async def test_burst_of_20000_with_block_arrives_whole_and_in_order(two_clients, run_id):
+    sub_session, pub_session = two_clients
+    counter = RejectionCounter("test")
+    got: list[int] = []
+    with TrioSubscriber(sub_session, keys.key(run_id, "sense"), counter=counter) as sub, \
+            Publisher(pub_session, run_id, "sense") as pub:
+        assert pub.congestion == zenoh.CongestionControl.BLOCK
+        with trio.fail_after(10):
+            await pub.wait_matched()
+
+        def burst() -> None:  # the publisher runs flat out in its own thread
+            for i in range(N_BURST):
+                pub.put(Sense(i, {"x": i * 0.5, "y": -1.0}))
+
+        batches = 0
+        with trio.fail_after(60):
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(trio.to_thread.run_sync, burst)
+                while len(got) < N_BURST:
+                    batch = await sub.receive_batch()
+                    batches += 1
+                    got.extend(r.msg.step for r in batch)
+    assert got == list(range(N_BURST))
+    assert counter.total == 0
+    assert batches < N_BURST  # wake-ups are coalesced
+
+
+async def test_malformed_messages_are_counted_and_do_not_stop_the_subscriber(
+        embedded, run_id, caplog):
+    counter = RejectionCounter("perception")
+    key = keys.key(run_id, "sense")
+    garbage = [b"\x00\xff", b"{}", b'{"step":1,"values":{"x":NaN},"version":1}',
+               b'{"step":1,"values":{},"version":99}', b"[]"]
+    with caplog.at_level(logging.WARNING, logger="qlap.bus"), \
+            TrioSubscriber(embedded, key, counter=counter) as sub, \
+            Publisher(embedded, run_id, "sense") as pub:
+        for i, g in enumerate(garbage):
+            pub.put_raw(g)
+            pub.put(Sense(i, {"x": 1.0}))
+        got = []
+        with trio.fail_after(5):
+            while len(got) < len(garbage):
+                got.extend(await sub.receive_batch())
+    assert [r.msg.step for r in got] == list(range(len(garbage)))
+    assert counter.total == len(garbage)
+    assert counter.by_key == {key: len(garbage)}
+    assert "got array" in counter.snapshot().last_error
+    assert "unknown version 99" in caplog.text
+    assert f"rejected message #5 on {key}" in caplog.text
+
+
+async def test_publisher_refuses_the_wrong_type_and_picks_congestion_control(embedded, run_id):
+    with Publisher(embedded, run_id, "motor") as motor, \
+            Publisher(embedded, run_id, "calllist") as calllist:
+        assert motor.congestion == zenoh.CongestionControl.BLOCK
+        assert calllist.congestion == zenoh.CongestionControl.DROP
+        with pytest.raises(TypeError, match="carries Motor"):
+            motor.put(Sense(1, {}))
+        motor.put(Motor(1, {"u": 0.0}))
+        calllist.put(CallList(1, ()))
+
+
+async def test_liveliness_shows_an_actor_appear_and_disappear(router_endpoint, run_id):
+    with zenoh.open(client_config(router_endpoint)) as watcher_session, \
+            AliveWatcher(watcher_session, run_id) as watcher:
+        with trio.fail_after(10):
+            with zenoh.open(client_config(router_endpoint)) as actor_session, \
+                    declare_alive(actor_session, run_id, "world"):
+                assert await watcher.wait_until(lambda alive: "world" in alive) == {"world"}
+            # the actor's session closed, as when its process dies
+            await watcher.wait_until(lambda alive: "world" not in alive)
+
+
+async def test_late_joiner_fetches_current_state(embedded, run_id):
+    key = keys.key(run_id, "delta/landmarks")
+    deltas = [DeltaMsg.of("landmarks", Delta(v, 4000 * v, 4000 * v, ())) for v in (1, 2, 3)]
+    with StateQueryable(embedded, key) as state:
+        for d in deltas:
+            state.append(key, d)
+        with trio.fail_after(10):
+            replies = await fetch(embedded, f"qlap/{run_id}/delta/**")
+        assert [r.msg for r in replies] == deltas
+        state.set(key, deltas[-1])
+        with trio.fail_after(10):
+            replies = await fetch(embedded, key)
+        assert [r.msg for r in replies] == [deltas[-1]]
+
+
+async def test_inbox_wakes_once_per_burst_from_another_thread():
+    inbox: TrioInbox[int] = TrioInbox()
+
+    def produce() -> None:
+        for i in range(1000):
+            inbox.push(i)
+        inbox.close()
+
+    await trio.to_thread.run_sync(produce)
+    got: list[int] = []
+    while batch := await inbox.get_batch():
+        got.extend(batch)
+    assert got == list(range(1000))
+
+
+async def test_subscriber_iteration_ends_when_closed(embedded, run_id, autojump_clock):
+    sub = TrioSubscriber(embedded, keys.key(run_id, "sense"))
+    batches = []
+
+    async def consume() -> None:
+        async for batch in sub:
+            batches.append(batch)
+
+    async with trio.open_nursery() as nursery:
+        nursery.start_soon(consume)
+        await trio.sleep(1)
+        sub.close()
+    assert batches == []
