@@ -25,7 +25,7 @@ import types
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, lru_cache
 from typing import Any, Literal
 
 from ..qlap.delta import Delta
@@ -224,23 +224,25 @@ assert set(TOPIC_TYPES) == set(keys.TOPICS)
 def encode(msg: Message) -> bytes:
     """Compact UTF-8 JSON of ``msg``. A NaN or infinity raises :class:`MessageError`."""
     try:
-        return json.dumps(_to_obj(msg), separators=(",", ":"), ensure_ascii=False,
-                          allow_nan=False).encode()
+        return _ENCODER.encode(_to_obj(msg)).encode()
     except (ValueError, TypeError) as e:
         raise MessageError(f"<{type(msg).__name__}>", f"cannot encode: {e}") from None
 
 
+_ENCODER = json.JSONEncoder(separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+
+
 def _to_obj(msg: Any) -> dict[str, Any]:
-    out = {}
-    for name in _field_names(type(msg)):
-        v = getattr(msg, name)
-        out[name] = _to_obj(v) if dataclasses.is_dataclass(v) else v
+    out = dict(msg.__dict__)  # fields in declaration order
+    for name in _nested(type(msg)):
+        out[name] = _to_obj(out[name])
     return out
 
 
 @cache
-def _field_names(cls: type) -> tuple[str, ...]:
-    return tuple(f.name for f in dataclasses.fields(cls))
+def _nested(cls: type) -> tuple[str, ...]:
+    hints = typing.get_type_hints(cls, globalns=globals())
+    return tuple(f.name for f in dataclasses.fields(cls) if dataclasses.is_dataclass(hints[f.name]))
 
 
 def decode(key_expr: str, payload: bytes | bytearray | memoryview | str) -> Message:
@@ -250,24 +252,30 @@ def decode(key_expr: str, payload: bytes | bytearray | memoryview | str) -> Mess
     JSON, NaN/infinity, a missing, unknown or wrongly typed field, or an unknown version.
     """
     key_expr = str(key_expr)
-    try:
-        topic = keys.topic_of(key_expr)
-    except keys.BusKeyError as e:
-        raise MessageError(key_expr, str(e)) from None
-    cls = TOPIC_TYPES.get(topic)
+    topic, cls, problem = _topic_type(key_expr)
     if cls is None:
-        raise MessageError(key_expr, f"topic {topic!r} carries no messages")
+        raise MessageError(key_expr, problem)
     try:
         text = payload if isinstance(payload, str) else bytes(payload).decode("utf-8")
         obj = json.loads(text, parse_constant=_reject_constant)
     except (UnicodeDecodeError, ValueError) as e:
         raise MessageError(key_expr, f"not UTF-8 JSON: {e}") from None
     try:
-        msg = _build(cls, obj, "")
+        msg = _build(cls, obj)
         _check_rules(msg, topic)
     except _Invalid as e:
         raise MessageError(key_expr, f"invalid {cls.__name__}: {e}") from None
     return msg
+
+
+@lru_cache(maxsize=4096)
+def _topic_type(key_expr: str) -> tuple[str, type | None, str]:
+    try:
+        topic = keys.topic_of(key_expr)
+    except keys.BusKeyError as e:
+        return "", None, str(e)
+    cls = TOPIC_TYPES.get(topic)
+    return topic, cls, "" if cls else f"topic {topic!r} carries no messages"
 
 
 def _reject_constant(name: str) -> float:
@@ -275,30 +283,46 @@ def _reject_constant(name: str) -> float:
 
 
 class _Invalid(Exception):
-    pass
+    """A validation failure; ``where`` collects the path innermost first, only on failure, so
+    that valid messages pay nothing for error reporting."""
+
+    def __init__(self, what: str, *where: str) -> None:
+        super().__init__(what)
+        self.what = what
+        self.where = list(where)
+
+    def at(self, part: str) -> _Invalid:
+        self.where.append(part)
+        return self
+
+    def __str__(self) -> str:
+        path = "".join(reversed(self.where)).lstrip(".")
+        return f"{path} {self.what}" if path else self.what
 
 
-def _build(cls: type, obj: Any, path: str) -> Any:
-    if not isinstance(obj, dict):
-        raise _Invalid(f"{path or 'message'} must be a JSON object, got {_tname(obj)}")
+def _build(cls: type, obj: Any) -> Any:
+    if type(obj) is not dict:
+        raise _Invalid(f"must be a JSON object, got {_tname(obj)}")
     fields = _fields(cls)
     if "version" in fields:
         if "version" not in obj:
-            raise _Invalid(f"missing field {path + 'version'!r}")
+            raise _Invalid("missing field 'version'")
         v = obj["version"]
         if type(v) is not int:
-            raise _Invalid(f"{path}version must be an integer, got {v!r}")
+            raise _Invalid(f"must be an integer, got {v!r}", ".version")
         if v not in SUPPORTED_VERSIONS[cls]:
             raise _Invalid(f"unknown version {v} (supported: {sorted(SUPPORTED_VERSIONS[cls])})")
-    unknown = set(obj) - set(fields)
-    if unknown:
-        raise _Invalid(f"unknown field(s) {sorted(unknown)}")
+    if len(obj) > len(fields) or not fields.keys() >= obj.keys():
+        raise _Invalid(f"unknown field(s) {sorted(set(obj) - set(fields))}")
     kwargs = {}
     for name, (check, required) in fields.items():
         if name in obj:
-            kwargs[name] = check(obj[name], path + name)
+            try:
+                kwargs[name] = check(obj[name])
+            except _Invalid as e:
+                raise e.at("." + name) from None
         elif required:
-            raise _Invalid(f"missing field {path + name!r}")
+            raise _Invalid(f"missing field {name!r}")
     return cls(**kwargs)
 
 
@@ -320,8 +344,10 @@ def _check_rules(msg: Any, topic: str) -> None:
 
 
 # --------------------------------------------------------------------------- type checkers
+# A checker takes a JSON value and returns it converted (tuples for arrays, float for integer
+# numbers in float fields), or raises _Invalid. Object keys from json.loads are always strings.
 
-Checker = Callable[[Any, str], Any]
+Checker = Callable[[Any], Any]
 
 
 def _tname(v: Any) -> str:
@@ -329,46 +355,81 @@ def _tname(v: Any) -> str:
             float: "number", type(None): "null"}.get(type(v), type(v).__name__)
 
 
-def _check_int(v: Any, path: str) -> int:
+def _check_int(v: Any) -> int:
     if type(v) is not int:
-        raise _Invalid(f"{path} must be an integer, got {_tname(v)} {v!r}")
+        raise _Invalid(f"must be an integer, got {_tname(v)} {v!r}")
     return v
 
 
-def _check_float(v: Any, path: str) -> float:
+def _check_float(v: Any) -> float:
     t = type(v)
     if t is float:
-        if not math.isfinite(v):
-            raise _Invalid(f"{path} must be finite, got {v!r}")
+        if v - v != 0.0:  # inf or nan
+            raise _Invalid(f"must be finite, got {v!r}")
         return v
     if t is int:
         return float(v)
-    raise _Invalid(f"{path} must be a number, got {_tname(v)} {v!r}")
+    raise _Invalid(f"must be a number, got {_tname(v)} {v!r}")
 
 
-def _check_str(v: Any, path: str) -> str:
+def _check_str(v: Any) -> str:
     if type(v) is not str:
-        raise _Invalid(f"{path} must be a string, got {_tname(v)} {v!r}")
+        raise _Invalid(f"must be a string, got {_tname(v)} {v!r}")
     return v
 
 
-def _check_bool(v: Any, path: str) -> bool:
+def _check_bool(v: Any) -> bool:
     if type(v) is not bool:
-        raise _Invalid(f"{path} must be true or false, got {_tname(v)} {v!r}")
+        raise _Invalid(f"must be true or false, got {_tname(v)} {v!r}")
     return v
 
 
-def _check_json(v: Any, path: str) -> Any:
+def _check_json(v: Any) -> Any:
     # json.loads already rejected NaN/Infinity literals; huge literals (1e999) parse to inf.
     t = type(v)
     if t is float and not math.isfinite(v):
-        raise _Invalid(f"{path} must be finite, got {v!r}")
+        raise _Invalid(f"must be finite, got {v!r}")
     if t is list:
         for i, x in enumerate(v):
-            _check_json(x, f"{path}[{i}]")
+            try:
+                _check_json(x)
+            except _Invalid as e:
+                raise e.at(f"[{i}]") from None
     elif t is dict:
         for k, x in v.items():
-            _check_json(x, f"{path}.{k}")
+            try:
+                _check_json(x)
+            except _Invalid as e:
+                raise e.at(f"[{k!r}]") from None
+    return v
+
+
+def _dict_of_float(v: Any) -> dict[str, float]:
+    # The hot path (sense, motor): one pass, no per-item calls.
+    if type(v) is not dict:
+        raise _Invalid(f"must be an object, got {_tname(v)}")
+    out = v
+    for k, x in v.items():
+        if type(x) is float and x - x == 0.0:
+            continue
+        if type(x) is int:
+            if out is v:
+                out = dict(v)
+            out[k] = float(x)
+            continue
+        try:
+            _check_float(x)
+        except _Invalid as e:
+            raise e.at(f"[{k!r}]") from None
+    return out
+
+
+def _dict_of_int(v: Any) -> dict[str, int]:
+    if type(v) is not dict:
+        raise _Invalid(f"must be an object, got {_tname(v)}")
+    for k, x in v.items():
+        if type(x) is not int:
+            raise _Invalid(f"must be an integer, got {_tname(x)} {x!r}", f"[{k!r}]")
     return v
 
 
@@ -384,40 +445,62 @@ def _checker(tp: Any) -> Checker:
         return _check_bool
     if tp is Any:
         return _check_json
+    if tp == dict[str, float]:
+        return _dict_of_float
+    if tp == dict[str, int]:
+        return _dict_of_int
     if dataclasses.is_dataclass(tp):
-        return lambda v, path: _build(tp, v, path + ".")
+        return lambda v: _build(tp, v)  # type: ignore[arg-type]
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin is Literal:
         allowed = args
 
-        def check_literal(v: Any, path: str) -> Any:
+        def check_literal(v: Any) -> Any:
             if type(v) is not str or v not in allowed:
-                raise _Invalid(f"{path} must be one of {list(allowed)}, got {v!r}")
+                raise _Invalid(f"must be one of {list(allowed)}, got {v!r}")
             return v
         return check_literal
     if origin is dict:
-        kc, vc = _checker(args[0]), _checker(args[1])
+        vc = _checker(args[1])
 
-        def check_dict(v: Any, path: str) -> dict:
+        def check_dict(v: Any) -> dict:
             if type(v) is not dict:
-                raise _Invalid(f"{path} must be an object, got {_tname(v)}")
-            return {kc(k, f"{path} key"): vc(x, f"{path}[{k!r}]") for k, x in v.items()}
+                raise _Invalid(f"must be an object, got {_tname(v)}")
+            out = {}
+            for k, x in v.items():
+                try:
+                    out[k] = vc(x)
+                except _Invalid as e:
+                    raise e.at(f"[{k!r}]") from None
+            return out
         return check_dict
     if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
         ic = _checker(args[0])
 
-        def check_seq(v: Any, path: str) -> tuple:
+        def check_seq(v: Any) -> tuple:
             if type(v) is not list:
-                raise _Invalid(f"{path} must be an array, got {_tname(v)}")
-            return tuple(ic(x, f"{path}[{i}]") for i, x in enumerate(v))
+                raise _Invalid(f"must be an array, got {_tname(v)}")
+            out = []
+            for i, x in enumerate(v):
+                try:
+                    out.append(ic(x))
+                except _Invalid as e:
+                    raise e.at(f"[{i}]") from None
+            return tuple(out)
         return check_seq
     if origin is tuple:
         ics = [_checker(a) for a in args]
 
-        def check_tuple(v: Any, path: str) -> tuple:
+        def check_tuple(v: Any) -> tuple:
             if type(v) is not list or len(v) != len(ics):
-                raise _Invalid(f"{path} must be an array of {len(ics)} items, got {v!r}")
-            return tuple(c(x, f"{path}[{i}]") for i, (c, x) in enumerate(zip(ics, v, strict=True)))
+                raise _Invalid(f"must be an array of {len(ics)} items, got {v!r}")
+            out = []
+            for i, (c, x) in enumerate(zip(ics, v, strict=True)):
+                try:
+                    out.append(c(x))
+                except _Invalid as e:
+                    raise e.at(f"[{i}]") from None
+            return tuple(out)
         return check_tuple
     raise TypeError(f"no checker for {tp!r}")
 
