@@ -26,10 +26,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser(
         "run", help="an agent learning autonomously in a world",
-        description="Run an agent in WORLD: motor babbling (Appendix E) while the model learner "
-                    "learns landmarks and DBNs (ch. 4). Shows a progress bar, writes "
-                    "checkpoints every 10,000 steps and, with --out, knowledge.json and "
-                    "summary.json, and prints what was learned.")
+        description="Run a QLAP agent in WORLD (Algorithm 2): motor babbling for the first "
+                    "20,000 steps, then practice of learned actions chosen by IAC. Shows a "
+                    "progress bar (steps/s, DBNs, plans, landmarks), writes a checkpoint every "
+                    "10,000 steps under OUT/checkpoints/ and, at the end, OUT/knowledge.json "
+                    "and OUT/summary.json (docs/outputs.md), and prints what was learned.")
     run.add_argument("--world", default="core",
                      help="registered world spec (e.g. core, core:floating, core2d, pong, "
                           "gym:Pendulum-v1) or package.module:Factory (default: core)")
@@ -42,7 +43,34 @@ def build_parser() -> argparse.ArgumentParser:
                      help="no interactive UI (the only mode until the TUI exists)")
     run.add_argument("--lag", type=int, default=0,
                      help="batch lag L in steps (DESIGN.md §4; 0 = Algorithm 2)")
+    run.add_argument("--babble-steps", type=int, default=None,
+                     help="length of the initial motor-babbling period (default: 20000, §6.1)")
+    run.add_argument("--resume", type=Path, default=None,
+                     help="continue from an agent checkpoint directory")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    show = sub.add_parser("show", help="print learned knowledge in the reference's notation",
+                          description="Print the knowledge of a run directory (its "
+                                      "knowledge.json) or of a checkpoint directory, grouped "
+                                      "by action like Tables 8.2–8.6.")
+    show.add_argument("path", type=Path, help="run directory or checkpoint directory")
+    show.add_argument("--all", action="store_true",
+                      help="also list DBNs that are not plans")
+
+    ev = sub.add_parser("eval", help="evaluate a checkpoint on a task (§7.2)",
+                        description="Run the §7.2 protocol: TRIALS trials of TASK, each up to "
+                                    "300 steps, −0.01 a step and +9.99 on success, the agent "
+                                    "in goal mode with learning off. Prints the mean reward "
+                                    "with its standard error and the success rate.")
+    ev.add_argument("--checkpoint", type=Path, default=None,
+                    help="agent checkpoint directory (not needed with --policy random)")
+    ev.add_argument("--world", default="core", help="world spec (default: core)")
+    ev.add_argument("--task", required=True, help="task name, e.g. move_block, hit_floor, pickup")
+    ev.add_argument("--trials", type=_positive, default=100)
+    ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--policy", choices=("qlap", "random"), default="qlap",
+                    help="qlap (the checkpoint's agent) or random (the random-motor baseline)")
+    ev.add_argument("--json", action="store_true", help="print the result as JSON")
 
     snap = sub.add_parser("snapshot", help="render a world to a PNG (MuJoCo offscreen)",
                           description="Render a world's scene to a PNG file.")
@@ -57,37 +85,65 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.command == "run":
-        return _cmd_run(args)
-    if args.command == "snapshot":
-        from worlds.snapshot import main_snapshot
+    try:
+        if args.command == "run":
+            return _cmd_run(args)
+        if args.command == "show":
+            return _cmd_show(args)
+        if args.command == "eval":
+            return _cmd_eval(args)
+        if args.command == "snapshot":
+            from worlds.snapshot import main_snapshot
 
-        return main_snapshot(["--world", args.world, "--out", args.out, "--seed", str(args.seed)])
-    if args.command == "worlds":
-        import worlds
+            return main_snapshot(["--world", args.world, "--out", args.out,
+                                  "--seed", str(args.seed)])
+        if args.command == "worlds":
+            import worlds
 
-        names = worlds.registered()
-        print(json.dumps(names) if args.json else "\n".join(names))
-        return 0
+            names = worlds.registered()
+            print(json.dumps(names) if args.json else "\n".join(names))
+            return 0
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
     return 2
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
+def _make_world(spec: str, command: str):
     import worlds
 
-    from .learning_run import run_learning
-    from .qlap import Params
-
     try:
-        world = worlds.make(args.world)
-    except (ValueError, ImportError) as exc:
+        return worlds.make(spec)
+    except (ValueError, ImportError, AttributeError) as exc:
+        print(f"qlap {command}: --world {spec}: {exc}", file=sys.stderr)
+        return None
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    import time
+
+    from .agent_run import run_agent
+    from .qlap import Params
+    from .qlap.checkpoint import CheckpointError, load_agent
+
+    world = _make_world(args.world, "run")
+    if world is None:
+        return 2
+    try:
+        changes = {"batch_lag": args.lag}
+        if args.babble_steps is not None:
+            changes["babble_steps"] = args.babble_steps
+        params = Params(**changes)
+    except ValueError as exc:
         print(f"qlap run: {exc}", file=sys.stderr)
         return 2
-    try:
-        params = Params(batch_lag=args.lag)
-    except ValueError as exc:
-        print(f"qlap run: --lag: {exc}", file=sys.stderr)
-        return 2
+    agent = None
+    if args.resume is not None:
+        try:
+            agent = load_agent(args.resume)
+        except CheckpointError as exc:
+            print(f"qlap run: --resume: {exc}", file=sys.stderr)
+            return 2
     progress_cb = None
     bar = None
     if not args.quiet:
@@ -99,49 +155,134 @@ def _cmd_run(args: argparse.Namespace) -> int:
             TimeRemainingColumn,
         )
 
-        bar = Progress(TextColumn("[bold]learning[/]"), BarColumn(), MofNCompleteColumn(),
+        bar = Progress(TextColumn("[bold]QLAP[/]"), BarColumn(), MofNCompleteColumn(),
                        TextColumn("{task.fields[rate]:>7} steps/s"),
-                       TextColumn("DBNs {task.fields[dbns]:>4}  landmarks {task.fields[lms]:>3}"),
+                       TextColumn("DBNs {task.fields[dbns]:>4}  plans {task.fields[plans]:>3}  "
+                                  "landmarks {task.fields[lms]:>3}"),
                        TimeRemainingColumn(), transient=False)
-        task = bar.add_task("run", total=args.steps, rate="-", dbns=0, lms=0)
-        import time
+        task = bar.add_task("run", total=args.steps, rate="-", dbns=0, plans=0, lms=0)
+        state = {"t0": time.perf_counter(), "first": None}
 
-        state = {"t0": time.perf_counter()}
-
-        def progress_cb(t: int, learner) -> None:
-            if (t + 1) % 500 == 0 or t + 1 == args.steps:
+        def progress_cb(t: int, agent) -> None:
+            if state["first"] is None:
+                state["first"] = t
+            done = t - state["first"] + 1
+            if done % 500 == 0 or done == args.steps:
                 el = time.perf_counter() - state["t0"]
-                lms = sum(len(s.landmarks) for s in learner.perception.spaces)
-                bar.update(task, completed=t + 1, rate=f"{(t + 1) / el:,.0f}",
-                           dbns=len(learner.dbns), lms=lms)
+                lms = sum(len(s.landmarks) for s in agent.learner.perception.spaces)
+                bar.update(task, completed=done, rate=f"{done / el:,.0f}",
+                           dbns=len(agent.learner.dbns), plans=len(agent.plans), lms=lms)
 
         bar.start()
     try:
-        learner, summary = run_learning(world, args.steps, args.seed, args.out,
-                                        params=params, progress=progress_cb)
+        agent, summary = run_agent(world, args.steps, args.seed, args.out, params=params,
+                                   progress=progress_cb, agent=agent)
     finally:
         if bar is not None:
             bar.stop()
         world.close()
-    _print_knowledge(learner, summary)
+    print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
+          f"({summary['steps_per_s']} steps/s); k = {summary['k']}, {summary['dbns']} DBNs, "
+          f"{summary['plans']} plans, {summary['landmarks']} landmarks, "
+          f"{summary['reliable_actions']} sufficiently reliable actions")
+    if summary["rejected_observations"]:
+        print(f"rejected observations: {summary['rejected_observations']} "
+              f"(first: {summary['rejected_examples'][0]})")
+    print(format_knowledge(agent.knowledge(), limit=25))
+    if args.out is not None:
+        print(f"\nwrote {args.out}/knowledge.json, summary.json, checkpoints/")
     return 0
 
 
-def _print_knowledge(learner, summary: dict) -> None:
-    k = learner.knowledge()
-    print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
-          f"({summary['steps_per_s']} steps/s); window k = {k['k']}")
-    print("\nlandmarks:")
+def _cmd_show(args: argparse.Namespace) -> int:
+    from .qlap.checkpoint import CheckpointError, load_agent
+
+    path: Path = args.path
+    if (path / "knowledge.json").exists():
+        knowledge = json.loads((path / "knowledge.json").read_text())
+    elif (path / "agent.json").exists():
+        try:
+            knowledge = load_agent(path).knowledge()
+        except CheckpointError as exc:
+            print(f"qlap show: {exc}", file=sys.stderr)
+            return 2
+    else:
+        print(f"qlap show: {path} holds neither knowledge.json nor an agent checkpoint",
+              file=sys.stderr)
+        return 2
+    print(format_knowledge(knowledge, show_all=args.all))
+    return 0
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from .agent_run import evaluate
+    from .qlap.checkpoint import CheckpointError
+
+    if args.policy == "qlap" and args.checkpoint is None:
+        print("qlap eval: --checkpoint is required with --policy qlap", file=sys.stderr)
+        return 2
+    world = _make_world(args.world, "eval")
+    if world is None:
+        return 2
+    try:
+        res = evaluate(args.checkpoint, world, args.task, args.trials, args.seed, args.policy)
+    except (CheckpointError, ValueError, KeyError) as exc:
+        print(f"qlap eval: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        world.close()
+    if args.json:
+        print(json.dumps(res))
+    else:
+        print(f"{res['world']} {res['task']} ({res['policy']}, {res['n_trials']} trials): "
+              f"mean reward {res['mean_reward']:.3f} ± {res['stderr_reward']:.3f} (s.e.), "
+              f"success rate {res['success_rate']:.2f}")
+    return 0
+
+
+def pretty(text: str) -> str:
+    """The reference's notation: h_x.dot -> ḣ_x, inf -> ∞."""
+    import re
+
+    text = re.sub(r"\b(\w)(\w*)\.dot\b", lambda m: m.group(1) + "\u0307" + m.group(2), text)
+    return text.replace("+inf", "+∞").replace("-inf", "−∞")
+
+
+def format_knowledge(k: dict, show_all: bool = False, limit: int | None = None) -> str:
+    """Knowledge grouped by action (Tables 8.2–8.6), landmarks first."""
+    lines = [f"step {k['step']}, window k = {k['k']}", "", "landmarks:"]
     for name, lms in k["landmarks"].items():
         learned = [m["label"] for m in lms if m["source"] != "initial"]
         if learned:
-            print(f"  {name:8s} {', '.join(learned)}")
-    reliable = [d for d in k["dbns"] if d["sufficiently_reliable"] and d["kind"] == "change"]
-    print(f"\nsufficiently reliable change DBNs ({len(reliable)} of {len(k['dbns'])} DBNs):")
-    for d in reliable[:40]:
-        print(f"  {d['label']}  brel={d['brel']:.2f} H={d['entropy']:.2f}")
-    if summary["rejected_observations"]:
-        print(f"\nrejected observations: {summary['rejected_observations']}")
+            lines.append(f"  {pretty(name):10s} {', '.join(learned)}")
+    dbns = {d["id"]: d for d in k["dbns"]}
+    actions = sorted(k.get("actions", []), key=lambda a: (-a["reliability"], a["label"]))
+    lines += ["", f"actions with plans ({sum(1 for a in actions if a['plans'])}):"]
+    shown = 0
+    for a in actions:
+        if not a["plans"]:
+            continue
+        if limit is not None and shown >= limit:
+            lines.append("  …")
+            break
+        shown += 1
+        flag = "  (sufficiently reliable)" if a["sufficiently_reliable"] else ""
+        lines.append(f"  {pretty(a['label'])}  rel {a['reliability']:.2f}  "
+                     f"calls {a['calls']}{flag}")
+        for p in a["plans"]:
+            d = dbns.get(p["dbn"], {})
+            brel = "⊥" if d.get("brel") is None else f"{d['brel']:.2f}"
+            co = "{" + ", ".join(pretty(v) for v in p["context_o"]) + "}"
+            lines.append(f"      {pretty(p['dbn_label'])}  brel {brel}  "
+                         f"H {d.get('entropy', float('nan')):.2f}  C_o {co}  "
+                         f"rel(o) {p['rel_o']:.2f}")
+    if show_all:
+        lines += ["", "DBNs that are not plans:"]
+        for d in k["dbns"]:
+            if not d["plan"]:
+                brel = "⊥" if d["brel"] is None else f"{d['brel']:.2f}"
+                lines.append(f"  {pretty(d['label'])}  brel {brel}  H {d['entropy']:.2f}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -338,6 +338,17 @@ class Agent:
         self.mode = "idle"
         return self.goal
 
+    def new_episode(self) -> None:
+        """A discontinuity in the world (a new trial): forget the running call list and the
+        previous values, so no derivative or event spans the jump."""
+        self.goal = None
+        self.call_list.clear()
+        self.mode = "idle"
+        per = self.learner.perception
+        per.prev_x = np.full(len(self.table), np.nan)
+        per.prev_q = np.full(len(self.table), -1, dtype=np.int64)
+        per._all_seen = False
+
     def clear_goal(self) -> None:
         self.goal = None
         self.call_list.clear()

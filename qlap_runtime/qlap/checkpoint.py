@@ -273,7 +273,6 @@ def load_agent(directory: str | Path) -> Any:
         agent.rng.bit_generator.state = meta["seed_state"]
         agent.babbler.load_state(meta["babbler"])
         agent.actions = ActionTable.from_json(meta["actions"], learner.params)
-        sizes = list(learner.perception.events.sizes)
         for d in meta["plans"]:
             dbn = learner.dbns[int(d["dbn_id"])]
             pl = Plan(int(d["id"]), dbn, learner.table, learner.params, int(d["created"]),
@@ -292,7 +291,6 @@ def load_agent(directory: str | Path) -> Any:
             traces = arrays[f"plan.{pid}.traces"]
             pl.sarsa = SarsaLambda(pl.q, learner.params,
                                    traces.astype(float) if traces.size else None)
-            del sizes
             list(learner.perception.events.sizes)
         agent.next_plan_id = int(meta["next_plan_id"])
         agent.call_list = [Frame.from_json(f) for f in meta["call_list"]]

@@ -68,7 +68,7 @@ class Plan:
 
     # -- structure ------------------------------------------------------------------------------
     def build(self, dbn: DBN, sizes: Mapping[int, int] | list[int], rel_action: RelAction,
-              rel_model: Callable[[Mapping[int, int]], float], fresh: bool = False) -> None:
+              rel_model: Callable[[PlanStateSpace], np.ndarray], fresh: bool = False) -> None:
         """(Re)build the MDP from the DBN's current structure; keep Q if the space is unchanged.
 
         A changed state space (new landmarks, contexts) is re-planned by value iteration.
@@ -93,23 +93,19 @@ class Plan:
     def _model(self, rel_action: RelAction, rel_model) -> TransitionModel:
         assert self.space is not None
         assert self.spec is not None
-        goal_key = self.action
-        dot_of = self._dot_of
-        mags = self._magnitudes
-
-        def regress(state: Mapping[int, int], a: MDPAction) -> bool:
-            # §5.2.1 rule 2: reaching a(v, q) on a magnitude would need the very change this
-            # plan is for (e.g. ⟨{Y}: X→x ⇒ Ẏ→[+]⟩ with Y below q needs Ẏ = [+]).
-            if a.var not in mags or a.var not in state:
-                return False
-            now = state[a.var]
-            if now == a.value:
-                return False
-            need = (dot_of.get(a.var, -1), 2 if now < a.value else 0)
-            return need == goal_key
-
+        space = self.space
+        vals = space.all_values()
+        # §5.2.1 rule 2 as a mask: reaching a(v, q) on a magnitude would need the very change
+        # this plan is for (e.g. ⟨{Y}: X→x ⇒ Ẏ→[+]⟩ with Y below q needs Ẏ = [+]).
+        regress = np.zeros((space.n_states, len(self.actions)), dtype=bool)
+        gvar, gval = self.action
+        for j, a in enumerate(self.actions):
+            if a.var in self._magnitudes and self._dot_of.get(a.var) == gvar and a.var in space:
+                now = vals[:, space.position(a.var)]
+                need = np.where(now < a.value, 2, 0)
+                regress[:, j] = (now != a.value) & (need == gval)
         rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
-        return TransitionModel.build(self.space, self.actions, self.spec, rel_a, rel_model,
+        return TransitionModel.build(space, self.actions, self.spec, rel_a, rel_model(space),
                                      regress)
 
     def refresh(self, rel_action: RelAction, rel_model, dyna: bool) -> None:
@@ -202,19 +198,21 @@ class Plan:
         return float((s + self.params.prior) / (s + f + 2 * self.params.prior))
 
 
-def dbn_rel_state(dbn: DBN, sizes, prior: float) -> Callable[[Mapping[int, int]], float]:
-    """rel(r, s): the DBN's CPT cell for the context values of state s (prior α = β = 1)."""
+def dbn_rel_state(dbn: DBN, sizes, prior: float) -> Callable[[PlanStateSpace], np.ndarray]:
+    """rel(r, s) for every state of a plan's space: the DBN's CPT cell of the state's context
+    values (prior α = β = 1). Returns a function of the space (vectorised)."""
     ctx = dbn.context
-    s_arr, f_arr = dbn.cpt_s, dbn.cpt_f
+    rel_cells = (dbn.cpt_s + prior) / (dbn.cpt_s + dbn.cpt_f + 2 * prior)
 
-    def rel(state: Mapping[int, int]) -> float:
-        cell = 0
+    def rel(space: PlanStateSpace) -> np.ndarray:
+        vals = space.all_values()
+        cell = np.zeros(space.n_states, dtype=np.int64)
         for v in ctx:
-            cell = cell * sizes[v] + state[v]
-        if cell >= len(s_arr):
-            return 0.5
-        s, f = s_arr[cell], f_arr[cell]
-        return float((s + prior) / (s + f + 2 * prior))
+            cell = cell * int(sizes[v]) + vals[:, space.position(v)]
+        out = np.full(space.n_states, 0.5)
+        ok = cell < len(rel_cells)
+        out[ok] = rel_cells[cell[ok]]
+        return out
 
     return rel
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import beta as _beta
+from scipy.special import betainc as _betainc
 
 
 def success_probability(successes: float, failures: float, prior: float = 1.0) -> float:
@@ -31,7 +31,7 @@ def prob_below(theta: float, successes: float, failures: float, prior: float = 1
     a, b = successes + prior, failures + prior
     if a <= 0 or b <= 0:
         return False
-    return bool(_beta.cdf(theta, a, b) >= confidence)
+    return bool(_betainc(a, b, theta) >= confidence)          # beta.cdf(θ, a, b)
 
 
 def prob_above(theta: float, successes: float, failures: float, prior: float = 1.0,
@@ -40,14 +40,16 @@ def prob_above(theta: float, successes: float, failures: float, prior: float = 1
     a, b = successes + prior, failures + prior
     if a <= 0 or b <= 0:
         return False
-    return bool(_beta.sf(theta, a, b) >= confidence)
+    return bool(1.0 - _betainc(a, b, theta) >= confidence)    # beta.sf(θ, a, b)
 
 
 def prob_above_many(theta: np.ndarray, successes: np.ndarray, failures: np.ndarray,
                     prior: float = 1.0, confidence: float = 0.8) -> np.ndarray:
     """Vectorised :func:`prob_above` (used by the pairwise contingency search, §4.1.2)."""
     theta = np.clip(np.asarray(theta, dtype=float), 0.0, 1.0)
-    return _beta.sf(theta, successes + prior, failures + prior) >= confidence
+    sf = 1.0 - _betainc(np.asarray(successes, dtype=float) + prior,
+                        np.asarray(failures, dtype=float) + prior, theta)
+    return sf >= confidence
 
 
 def binary_entropy(p: float) -> float:

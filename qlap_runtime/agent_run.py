@@ -1,0 +1,146 @@
+"""Headless runs of the synchronous agent (Algorithm 2) in a world, and evaluation trials.
+
+``run_agent`` is the main job: an agent learning autonomously in a world for N steps, with
+checkpoints every 10,000 steps (§7.2), ``knowledge.json`` and ``summary.json`` (schemas in
+docs/outputs.md). ``evaluate`` runs the §7.2 protocol on a checkpoint: goal mode, learning off,
+−0.01 a step, +9.99 on success, 300 steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .qlap import Params
+from .qlap.agent import Agent
+from .qlap.checkpoint import atomic_write_json, load_agent, save_agent
+from .qlap.perception import InvalidObservation
+
+ProgressFn = Callable[[int, Agent], None]
+
+
+def params_for_world(world: Any, base: Params | None = None) -> Params:
+    """Apply the options a world declares for the agent (e.g. pong's k = 6 and NRP, §7.10.1)."""
+    params = base or Params()
+    opts = dict(getattr(world, "agent_options", {}) or {})
+    changes: dict[str, Any] = {}
+    if "k_fixed" in opts:
+        changes["k_fixed"] = int(opts["k_fixed"])
+    if opts.get("nrp"):
+        changes["ablations"] = dataclasses.replace(params.ablations, nrp=True)
+    if "derivative_zero_band" in opts:
+        changes["derivative_zero_band"] = float(opts["derivative_zero_band"])
+    return params.replace(**changes) if changes else params
+
+
+def summary_of(agent: Agent, world: Any, seed: int, steps: int, wall: float,
+               rejected: list[str]) -> dict[str, Any]:
+    k = agent.learner.knowledge()
+    reliable = sum(1 for key, st in agent.actions.items()
+                   if st.reliable and agent.table[key[0]].kind.value != "motor")
+    c = agent.counters
+    return {
+        "world": getattr(world, "name", type(world).__name__), "seed": seed, "steps": steps,
+        "wall_time_s": round(wall, 3), "steps_per_s": round(steps / wall, 1) if wall else None,
+        "k": agent.learner.k, "dbns": len(k["dbns"]),
+        "reliable_dbns": sum(d["sufficiently_reliable"] for d in k["dbns"]),
+        "plans": len(agent.plans),
+        "landmarks": sum(len(v) for v in k["landmarks"].values()),
+        "reliable_actions": reliable,
+        "practice_calls": c.practice_calls, "babble_commands": c.babble_commands,
+        "practice_successes": c.successes, "practice_failures": c.failures,
+        "plans_created": c.plans_created, "plans_removed": c.plans_removed,
+        "rejected_observations": len(rejected), "rejected_examples": rejected[:20],
+    }
+
+
+def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
+              params: Params | None = None, progress: ProgressFn | None = None,
+              checkpoint_every: int = 10_000, agent: Agent | None = None
+              ) -> tuple[Agent, dict[str, Any]]:
+    """Run the agent autonomously in ``world`` for ``steps`` steps.
+
+    An observation the agent rejects (NaN, unknown variable) is counted and logged in the
+    summary, and the agent keeps its previous motor command; the run goes on.
+    """
+    params = params_for_world(world, params)
+    agent = agent or Agent(world.variables, params, seed=seed)
+    obs = world.reset(seed=seed)
+    motor = dict(agent.motor)
+    rejected: list[str] = []
+    start = agent.step_count + 1
+    t0 = time.perf_counter()
+    for t in range(start, start + steps):
+        try:
+            motor = agent.step(t, obs)
+        except InvalidObservation as exc:
+            rejected.append(f"step {t}: {exc}")
+        obs = world.step(motor)
+        if progress is not None:
+            progress(t, agent)
+        if out is not None and (t + 1) % checkpoint_every == 0:
+            save_agent(agent, Path(out) / "checkpoints" / f"step-{t + 1:07d}")
+    wall = time.perf_counter() - t0
+    summary = summary_of(agent, world, seed, steps, wall, rejected)
+    if out is not None:
+        out = Path(out)
+        atomic_write_json(out / "knowledge.json", agent.knowledge())
+        atomic_write_json(out / "summary.json", summary)
+        save_agent(agent, out / "checkpoints" / "final")
+    return agent, summary
+
+
+def goal_index(agent: Agent, goal: Any) -> tuple[int, int]:
+    """Map a world's Goal (variable name, value label) to the agent's action key."""
+    var = agent.table.index(goal.variable)
+    return agent.set_goal(var, goal.value)
+
+
+def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, seed: int,
+             policy: str = "qlap") -> dict[str, Any]:
+    """The §7.2 protocol: ``trials`` trials of a task with the agent in goal mode.
+
+    Learning is off during evaluation, so every trial uses the checkpoint's knowledge. A trial
+    in which the agent has no plan for the goal moves randomly (or holds the motors at 0 when
+    the task says so, §7.9.1).
+    """
+    from worlds.evaluate import run_random_trials, run_trials
+
+    if policy == "random":
+        res = run_random_trials(world, task_name, trials, seed)
+    elif policy == "qlap":
+        agent = load_agent(checkpoint)
+        agent.learning = False
+        if task_name not in world.tasks:
+            raise ValueError(f"{world.name} has no task {task_name!r}; "
+                             f"tasks: {sorted(world.tasks)}")
+        task = world.tasks[task_name]
+        idle = "zero" if task.hold_motors_at_zero_without_plan else "babble"
+        state = {"t": agent.step_count, "goal": None}
+
+        def qlap_policy(w: Any, obs: Mapping[str, float], goal: Any,
+                        rng: np.random.Generator) -> Mapping[str, float]:
+            if w.step_count == 0:                           # a new trial
+                agent.new_episode()
+                state["goal"] = None
+            if goal != state["goal"]:
+                state["goal"] = goal
+                agent.set_goal(agent.table.index(goal.variable), goal.value, idle=idle)
+            state["t"] += 1
+            return agent.step(int(state["t"]), obs)
+
+        res = run_trials(world, task_name, trials, seed, qlap_policy)
+    else:
+        raise ValueError(f"policy must be 'qlap' or 'random', got {policy!r}")
+    rewards = np.asarray(res["rewards"], dtype=float)
+    res["stderr_reward"] = float(rewards.std(ddof=1) / math.sqrt(len(rewards))) \
+        if len(rewards) > 1 else 0.0
+    res["success_rate"] = res["successes"] / max(1, res["n_trials"])
+    res["policy"] = policy
+    return res
