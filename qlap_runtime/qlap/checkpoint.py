@@ -291,7 +291,6 @@ def load_agent(directory: str | Path) -> Any:
             traces = arrays[f"plan.{pid}.traces"]
             pl.sarsa = SarsaLambda(pl.q, learner.params,
                                    traces.astype(float) if traces.size else None)
-            list(learner.perception.events.sizes)
         agent.next_plan_id = int(meta["next_plan_id"])
         agent.call_list = [Frame.from_json(f) for f in meta["call_list"]]
         agent.motor = {k: float(v) for k, v in meta["motor"].items()}
