@@ -170,8 +170,9 @@ class Agent:
                 self._remove_plan(pid)
         self._update_plan_contexts()
         self._convert_dbns_to_plans(t)
-        for plan in self.plans.values():
-            self._rebuild(plan)
+        changed = {pid for pid, plan in self.plans.items() if self._rebuild(plan)}
+        if changed & {f.plan_id for f in self.call_list}:
+            self._interrupt()
         self._update_self()
 
     def _interrupt(self) -> None:
@@ -187,11 +188,11 @@ class Agent:
         key = (var, value)
         return self.actions[key].rel(self.params.prior) if key in self.actions else 0.5
 
-    def _rebuild(self, plan: Plan, fresh: bool = False) -> None:
+    def _rebuild(self, plan: Plan, fresh: bool = False) -> bool:
         dbn = self.learner.dbns[plan.dbn_id]
         sizes = self._sizes()
-        plan.build(dbn, sizes, self._rel_action, dbn_rel_state(dbn, sizes, self.params.prior),
-                   fresh=fresh)
+        return plan.build(dbn, sizes, self._rel_action,
+                          dbn_rel_state(dbn, sizes, self.params.prior), fresh=fresh)
 
     def _refresh(self, plan: Plan) -> None:
         dbn = self.learner.dbns.get(plan.dbn_id)

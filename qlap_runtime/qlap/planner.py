@@ -68,10 +68,11 @@ class Plan:
 
     # -- structure ------------------------------------------------------------------------------
     def build(self, dbn: DBN, sizes: Mapping[int, int] | list[int], rel_action: RelAction,
-              rel_model: Callable[[PlanStateSpace], np.ndarray], fresh: bool = False) -> None:
+              rel_model: Callable[[PlanStateSpace], np.ndarray], fresh: bool = False) -> bool:
         """(Re)build the MDP from the DBN's current structure; keep Q if the space is unchanged.
 
         A changed state space (new landmarks, contexts) is re-planned by value iteration.
+        Returns True when the structure changed (state indices of the old space are void).
         """
         g = dbn.consequent                       # landmarks may have renumbered it
         self.goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
@@ -89,6 +90,7 @@ class Plan:
         if not same:
             self.q = value_iteration(self.model, self.params)
             self.sarsa = SarsaLambda(self.q, self.params)
+        return not same
 
     def _model(self, rel_action: RelAction, rel_model) -> TransitionModel:
         assert self.space is not None
