@@ -78,6 +78,10 @@ def build_parser() -> argparse.ArgumentParser:
     snap.add_argument("--out", required=True)
     snap.add_argument("--seed", type=int, default=0)
 
+    from .bus.cli import add_bus_commands
+
+    add_bus_commands(sub)
+
     worlds_p = sub.add_parser("worlds", help="list the registered worlds")
     worlds_p.add_argument("--json", action="store_true")
     return p
@@ -97,6 +101,10 @@ def main(argv: list[str] | None = None) -> int:
 
             return main_snapshot(["--world", args.world, "--out", args.out,
                                   "--seed", str(args.seed)])
+        from .bus.cli import BUS_COMMANDS, run_bus_command
+
+        if args.command in BUS_COMMANDS:
+            return run_bus_command(args)
         if args.command == "worlds":
             import worlds
 

@@ -35,3 +35,38 @@ def test_bad_world_and_bad_flags_give_clear_errors():
     r = qlap("run", "--lag", "5000", "--steps", "10")
     assert r.returncode == 2
     assert "batch_lag" in r.stderr
+
+
+def test_show_and_eval_on_a_run(tmp_path):
+    out = tmp_path / "run"
+    r = qlap("run", "--quiet", "--world", "core2d", "--steps", "3000", "--babble-steps",
+             "1000", "--seed", "1", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    r = qlap("show", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "landmarks:" in r.stdout
+    assert "actions with plans" in r.stdout
+    r = qlap("show", str(out / "checkpoints" / "final"))
+    assert r.returncode == 0, r.stderr
+    r = qlap("eval", "--world", "core2d", "--checkpoint", str(out / "checkpoints" / "final"),
+             "--task", "move_block", "--trials", "3", "--json")
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["n_trials"] == 3
+    assert res["policy"] == "qlap"
+    assert -3.01 <= res["mean_reward"] <= 9.99
+    r = qlap("eval", "--world", "core2d", "--policy", "random", "--task", "move_block",
+             "--trials", "3")
+    assert r.returncode == 0, r.stderr
+    assert "mean reward" in r.stdout
+    r = qlap("eval", "--world", "core2d", "--task", "move_block")
+    assert r.returncode == 2
+    assert "--checkpoint is required" in r.stderr
+    r = qlap("show", str(tmp_path))
+    assert r.returncode == 2
+
+
+def test_help_lists_every_command():
+    r = qlap("--help")
+    for cmd in ("run", "show", "eval", "snapshot", "worlds", "router", "record", "echo"):
+        assert cmd in r.stdout
