@@ -9,6 +9,15 @@ if [ ! -x "$VENV/bin/python" ]; then
     echo "[bootstrap] creating $VENV" >&2
     "$PY" -m venv "$VENV"
 fi
+# MuJoCo's offscreen renderer (qlap snapshot, its test) needs OSMesa on a machine without a
+# display; install it when we can (root with apt), otherwise the snapshot test skips and says so.
+if ! ldconfig -p 2>/dev/null | grep -q libOSMesa && [ "$(id -u)" = 0 ] \
+        && command -v apt-get >/dev/null; then
+    echo "[bootstrap] installing libosmesa6 (offscreen rendering)" >&2
+    (apt-get install -y -q libosmesa6 >/dev/null 2>&1 \
+        || (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libosmesa6 >/dev/null 2>&1)) \
+        || echo "[bootstrap] libosmesa6 not installed; snapshots will be skipped" >&2
+fi
 if [ ! -f "$STAMP" ] || [ "$ROOT/pyproject.toml" -nt "$STAMP" ]; then
     echo "[bootstrap] installing qlap-runtime with extras [dev,experiments]" >&2
     "$VENV/bin/python" -m pip install -q --upgrade pip >&2
