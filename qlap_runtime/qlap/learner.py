@@ -23,10 +23,95 @@ from .delta import Delta, Op
 from .landmarks import EventBinner, best_cut, candidate_range, is_candidate
 from .params import Params
 from .perception import EventIndex, Percept, Perception
+from .probability import binary_entropy_array, dbn_entropy
 from .quantity import Landmark, QuantitySpace
 from .variables import Event, Kind, VariableTable
 
 CHANGE_MINUS, CHANGE_ZERO, CHANGE_PLUS = 0, 1, 2
+
+
+# Margin between a fast bound/estimate and the exact value (floating-point rounding only; the
+# estimates differ from the exact values by far less).
+_TOL = 1e-9
+
+
+class _StoredActivations:
+    """One DBN's stored activations quantized once, for Algorithm 3 (all candidates at once).
+
+    Every count is an exact integer, the statistics of the chosen candidate are computed with
+    :func:`~.dbn.model_stats` on the same counts as the one-candidate-at-a-time evaluation, and
+    the vectorised entropies are only used to short-list the exact ones, so the choices are
+    those of :func:`~.context.update_context`'s default.
+    """
+
+    def __init__(self, learner: ModelLearner, dbn: DBN) -> None:
+        X, ok = dbn.stored()
+        self.X, self.ok = X, ok
+        self.Q = learner.perception.quantize(X) if len(X) else \
+            np.zeros((0, len(learner.table)), dtype=np.int64)
+        self.okf = ok.astype(float)
+        self.sizes = np.asarray(learner.perception.events.sizes, dtype=np.int64)
+        self.params = learner.params
+
+    def evaluate(self, ctx: tuple[int, ...]) -> ModelStats:
+        sizes = [int(self.sizes[v]) for v in ctx]
+        n_cells = int(np.prod(sizes)) if ctx else 1
+        cells = context_cells([self.Q[:, v] for v in ctx], sizes) if ctx else \
+            np.zeros(len(self.ok), dtype=np.int64)
+        s, f = counts_by_cell(cells, self.ok, n_cells)
+        return model_stats(s, f, len(ctx), self.params)
+
+    def choose(self, ctx: tuple[int, ...], options: list[int],
+               by_entropy: bool) -> tuple[int, ModelStats]:
+        p = self.params
+        Q, sizes = self.Q, self.sizes
+        n, m = len(self.ok), len(ctx)
+        opts = np.asarray(options, dtype=np.int64)
+        ctx_arr = np.asarray(ctx, dtype=np.int64)
+        # Mixed-radix cell of sorted((*ctx, v)) = (lo·|v| + q_v)·P_hi + hi, where lo/hi are the
+        # cells of the context variables below/above v.
+        lo = np.zeros((m + 1, n), dtype=np.int64)
+        hi = np.zeros((m + 1, n), dtype=np.int64)
+        phi = np.ones(m + 1, dtype=np.int64)
+        bad = np.zeros(n, dtype=bool)
+        for i, c in enumerate(ctx):
+            lo[i + 1] = lo[i] * sizes[c] + np.maximum(Q[:, c], 0)
+            bad |= Q[:, c] < 0
+        for i in range(m - 1, -1, -1):
+            hi[i] = np.maximum(Q[:, ctx[i]], 0) * phi[i + 1] + hi[i + 1]
+            phi[i] = phi[i + 1] * sizes[ctx[i]]
+        kv = np.searchsorted(ctx_arr, opts) if m else np.zeros(len(opts), dtype=np.int64)
+        Qo = Q[:, opts]
+        so = sizes[opts]
+        cells = (lo[kv].T * so + np.maximum(Qo, 0)) * phi[kv] + hi[kv].T
+        good = ~(bad[:, None] | (Qo < 0))
+        n_cells = phi[0] * so
+        offs = np.zeros(len(opts), dtype=np.int64)
+        np.cumsum(n_cells[:-1], out=offs[1:])
+        total = int(n_cells.sum())
+        idx = (cells + offs)[good]
+        w = np.broadcast_to(self.okf[:, None], cells.shape)[good]
+        s = np.bincount(idx, weights=w, minlength=total)
+        f = np.bincount(idx, minlength=total).astype(float) - s
+        if by_entropy:
+            tot = s + f
+            seg_tot = np.add.reduceat(tot, offs)
+            pe = (s + p.prior) / (tot + 2.0 * p.prior)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                terms = binary_entropy_array(pe) * (tot / np.repeat(seg_tot, n_cells))
+            approx = np.where(seg_tot > 0, np.add.reduceat(np.nan_to_num(terms), offs), 1.0)
+            short = np.flatnonzero(approx <= approx.min() + _TOL)
+            best = min((dbn_entropy(s[offs[j]:offs[j] + n_cells[j]],
+                                    f[offs[j]:offs[j] + n_cells[j]], p.prior), int(opts[j]), j)
+                       for j in short.tolist())
+            j = best[2]
+        else:
+            rel = (s + p.prior) / (s + f + 2.0 * p.prior)
+            rel = np.where(s >= p.brel_min_successes, rel, -1.0)
+            seg_max = np.maximum.reduceat(rel, offs)
+            j = int(np.lexsort((opts, -seg_max))[0])
+        a, b = int(offs[j]), int(offs[j] + n_cells[j])
+        return int(opts[j]), model_stats(s[a:b], f[a:b], m + 1, p)
 
 
 class ModelLearner:
@@ -361,14 +446,24 @@ class ModelLearner:
         return evaluate
 
     def _update_contexts(self) -> None:
+        version = self.perception.landmarks_version
         for dbn_id in sorted(self.dbns):
             dbn = self.dbns[dbn_id]
             if dbn.act_n < 1:
                 continue
-            new = update_context(dbn.context, self._candidates(dbn), self.evaluator(dbn),
-                                 self.params)
+            cands = self._candidates(dbn)
+            # Algorithm 3 is a function of the stored activations (changed only by record(),
+            # which counts dbn.total), the context, the quantity spaces and the candidates: a
+            # DBN whose search gave "no change" with the same inputs gives it again.
+            key = (dbn.total, dbn.context, version, tuple(cands))
+            if getattr(dbn, "_context_unchanged", None) == key:
+                continue
+            acts = _StoredActivations(self, dbn)
+            new = update_context(dbn.context, cands, acts.evaluate, self.params, acts.choose)
             if new is not None:
                 self._do(("set_context", dbn_id, list(new)))
+            else:
+                dbn._context_unchanged = key
 
     def _delete_dbns(self, step: int) -> None:
         """§6.2.3 (old, never deterministic, not a plan) and §6.2.1 item 4."""

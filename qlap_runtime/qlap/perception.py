@@ -159,6 +159,10 @@ class Perception:
         sizes = [len(v.values) if v.kind is Kind.NOMINAL else self.spaces[v.index].size
                  for v in self.table]
         self.events = EventIndex(self.table, sizes)
+        # Derived caches: a counter of landmark changes (for caches kept by the learner) and
+        # the per-history caches of history()/bin_size()/satisfied_fraction().
+        self.landmarks_version = getattr(self, "landmarks_version", 0) + 1
+        self._hist_cache: tuple | None = None
 
     def add_landmark(self, var: int, lm: Landmark) -> int:
         """Insert a landmark on a motor or magnitude variable; returns the split interval."""
@@ -297,21 +301,43 @@ class Perception:
                     f"0..{len(v.values) - 1} ({', '.join(v.values)})")
         return finite
 
+    def _history_cache(self) -> dict:
+        """Per-history derived values, valid until the next perceive (or a new history)."""
+        key = (self.steps_seen, self.hist_len, self.hist_head, id(self.hist_x), id(self.hist_q))
+        c = getattr(self, "_hist_cache", None)
+        if c is None or c[0] != key:
+            c = (key, {})
+            self._hist_cache = c
+        return c[1]
+
     def history(self) -> tuple[np.ndarray, np.ndarray]:
-        """The stored real and qualitative histories in time order (oldest first)."""
-        cap = self.hist_x.shape[0]
-        if self.hist_len < cap:
-            return self.hist_x[: self.hist_len], self.hist_q[: self.hist_len]
-        order = np.r_[self.hist_head:cap, 0:self.hist_head]
-        return self.hist_x[order], self.hist_q[order]
+        """The stored real and qualitative histories in time order (oldest first).
+
+        The arrays are shared between calls until the next step: treat them as read-only.
+        """
+        cache = self._history_cache()
+        h = cache.get("history")
+        if h is None:
+            cap = self.hist_x.shape[0]
+            if self.hist_len < cap:
+                h = self.hist_x[: self.hist_len], self.hist_q[: self.hist_len]
+            else:
+                order = np.r_[self.hist_head:cap, 0:self.hist_head]
+                h = self.hist_x[order], self.hist_q[order]
+            cache["history"] = h
+        return h
 
     def bin_size(self, var: int) -> float:
         """Bin size for ṽ: twice the average change (§4.4.2) over the stored history; a change
         counts when |ṽ(t) − ṽ(t−1)| > 0.001. 0 if it never changed."""
-        hx, _ = self.history()
-        d = np.abs(np.diff(hx[:, var]))
-        d = d[d > self.params.change_epsilon]
-        return 2.0 * float(d.mean()) if len(d) else 0.0
+        cache = self._history_cache().setdefault("bin_size", {})
+        b = cache.get(var)
+        if b is None:
+            hx, _ = self.history()
+            d = np.abs(np.diff(hx[:, var]))
+            d = d[d > self.params.change_epsilon]
+            b = cache[var] = 2.0 * float(d.mean()) if len(d) else 0.0
+        return b
 
     def satisfied_fraction(self) -> np.ndarray:
         """Fraction of the stored history's steps in which each consequent event was satisfied
@@ -320,7 +346,17 @@ class Perception:
         out = np.zeros(self.events.n_cons)
         if not len(hq):
             return out
-        for c in range(self.events.n_cons):
-            e = self.events.decode(int(self.events.event_of_cons[c]))
-            out[c] = float(np.mean(hq[:, e.var] == e.value))
+        ev = self.events
+        cons_e = ev.event_of_cons
+        cons_var = ev.event_var[cons_e]
+        # Consequents are on change and nominal variables (one event per value): the value is
+        # the event's offset within its variable.
+        cons_val = cons_e - ev.offset[cons_var]
+        n = len(hq)
+        for var in np.unique(cons_var).tolist():
+            sel = np.flatnonzero(cons_var == var)
+            col = hq[:, var].astype(np.int64)
+            counts = np.bincount(col[col >= 0], minlength=int(cons_val[sel].max()) + 1)
+            # Same value as np.mean(bool column): an exact integer count over n.
+            out[sel] = counts[cons_val[sel]] / n
         return out
