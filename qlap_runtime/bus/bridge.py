@@ -38,7 +38,7 @@ log = logging.getLogger("qlap.bus")
 RELIABLE_TOPICS = frozenset({"sense", "qstate", "motor", "delta/dbn", "delta/landmarks",
                              "delta/plans", "control"})
 """Topics that must not lose data: published with ``CongestionControl.BLOCK``."""
-DISPLAY_TOPICS = frozenset({"calllist", "iac", "stats"})
+DISPLAY_TOPICS = frozenset({"calllist", "iac", "stats", "knowledge", "world", "status"})
 """Display topics: published with ``CongestionControl.DROP`` (a slow viewer loses frames, the
 agent never waits for it)."""
 

@@ -15,6 +15,9 @@ topic                     writer        message (:mod:`qlap_runtime.bus.schema`)
 ``iac``                   executor      :class:`~.schema.IACChoice`
 ``stats``                 any actor     :class:`~.schema.Stats`
 ``control``               TUI / user    :class:`~.schema.Control`
+``knowledge``             agent         :class:`~.schema.Knowledge` (display snapshot)
+``world``                 agent         :class:`~.schema.WorldView` (display)
+``status``                agent         :class:`~.schema.AgentStatus` (display)
 ``alive/<actor>``         each actor    liveliness token (no payload)
 ========================  ============  =====================================================
 """
@@ -28,7 +31,7 @@ import time
 ROOT = "qlap"
 
 TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "delta/plans",
-          "calllist", "iac", "stats", "control")
+          "calllist", "iac", "stats", "control", "knowledge", "world", "status")
 """Every data topic under ``qlap/<run-id>/``."""
 
 ALIVE = "alive"

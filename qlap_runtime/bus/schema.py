@@ -185,7 +185,7 @@ class Stats:
     """Schema version of this message type."""
 
 
-ControlCommand = Literal["pause", "resume", "step", "goal", "save"]
+ControlCommand = Literal["pause", "resume", "step", "goal", "save", "speed", "quit"]
 
 
 @dataclass(frozen=True)
@@ -194,23 +194,209 @@ class Control:
 
     command: ControlCommand
     """``pause``, ``resume``, ``step`` (advance n steps while paused), ``goal`` (set a goal
-    ``{"var": name, "value": q}``) or ``save`` (write a checkpoint)."""
+    ``{"var": name, "value": q}``; ``{"clear": true}`` ends goal mode), ``save`` (write a
+    checkpoint), ``speed`` (``{"steps_per_s": x}``, 0 = as fast as possible) or ``quit`` (stop
+    the agent)."""
     args: dict[str, JSON] = field(default_factory=dict)
     """Arguments of the command, e.g. ``{"n": 10}`` for step, ``{"path": ...}`` for save."""
     version: int = 1
     """Schema version of this message type."""
 
 
-Message = Sense | QState | Motor | DeltaMsg | CallList | IACChoice | Stats | Control
+# --------------------------------------------------------------------------- display (TUI)
+# Snapshots for viewers (docs/tui.md): published with DROP, each one complete in itself, so a
+# late or slow viewer only needs the latest of each topic.
+
+
+@dataclass(frozen=True)
+class PlanInfo:
+    """One plan of an action, as in Tables 8.2–8.6 (inside :class:`Knowledge`)."""
+
+    id: int
+    """Plan id."""
+    dbn_id: int
+    """Id of the DBN the plan was made from."""
+    label: str
+    """The DBN in the reference's notation, e.g. ``⟨{h_x}: u_x→(331.27, +∞) ⇒ ḣ_x→[+]⟩``."""
+    kind: str
+    """``change`` or ``magnitude`` (the DBN's kind)."""
+    brel: float
+    """Best reliability of the DBN; −1 when undefined (⊥: no context cell has enough data)."""
+    entropy: float
+    """Entropy H of the DBN's context, in bits."""
+    context_o: tuple[str, ...]
+    """The plan's extra context C_o (variable names)."""
+    rel_o: float
+    """rel(o): the plan's own reliability over its calls."""
+    calls: int
+    """Times the plan was called."""
+    states: int
+    """Number of states of the plan's MDP."""
+
+
+@dataclass(frozen=True)
+class ActionInfo:
+    """One action a(v, q) that has a plan or was practised (inside :class:`Knowledge`)."""
+
+    label: str
+    """The action in the reference's notation, e.g. ``a(ḣ_x, [+])``."""
+    variable: str
+    """Variable name v (ASCII, e.g. ``h_x.dot``)."""
+    value: str
+    """Label of the qualitative value q, e.g. ``[+]`` or ``(0.5, +inf)``."""
+    index: int
+    """Index of q in the variable's quantity space."""
+    rel: float
+    """rel(a): reliability of the action (prior 1)."""
+    calls: int
+    """Times the action was called."""
+    successes: int
+    """Calls that succeeded."""
+    reliable: bool
+    """Sufficiently reliable (§6.2.1; sticky)."""
+    weight: float
+    """Current IAC weight w_a (eq. 6.1 once 2θ calls are recorded, else eq. 6.2 with the best
+    plan's rel(o)); −1 when the action has no plan."""
+    history: tuple[float, ...]
+    """Recent rel(a) after each call, oldest first (at most 32 values, for a sparkline)."""
+    plans: tuple[PlanInfo, ...]
+    """The action's plans, by id."""
+
+
+@dataclass(frozen=True)
+class LandmarkInfo:
+    """One landmark of a magnitude or motor variable (inside :class:`Knowledge`)."""
+
+    label: str
+    """The landmark's value as printed, e.g. ``331.27``."""
+    step: int
+    """Agent step at which it was adopted (0 for initial landmarks)."""
+    source: str
+    """How it came: ``initial``, ``event``, ``context`` or ``motor`` (as the learner says)."""
+
+
+@dataclass(frozen=True)
+class KnowledgeCounters:
+    """Counts of what has been learned (inside :class:`Knowledge`)."""
+
+    dbns: int = 0
+    """DBNs."""
+    reliable_dbns: int = 0
+    """Sufficiently reliable DBNs."""
+    plans: int = 0
+    """Plans."""
+    landmarks: int = 0
+    """Learned (non-initial) landmarks."""
+    reliable_actions: int = 0
+    """Sufficiently reliable non-motor actions."""
+    practice_calls: int = 0
+    """Actions chosen by IAC so far."""
+    babble_commands: int = 0
+    """Babbling commands chosen instead of an action."""
+    successes: int = 0
+    """Practised (or goal) actions that succeeded."""
+    failures: int = 0
+    """Practised (or goal) actions that failed."""
+
+
+@dataclass(frozen=True)
+class Knowledge:
+    """A snapshot of what the agent has learned (topic ``knowledge``), published every few
+    hundred steps and when it changes; complete in itself."""
+
+    step: int
+    """Agent step of the snapshot."""
+    k: int
+    """The window k of the learner (steps)."""
+    actions: tuple[ActionInfo, ...]
+    """Actions that have a plan or were practised."""
+    landmarks: dict[str, tuple[LandmarkInfo, ...]]
+    """Landmarks of each magnitude and motor variable, in order of value."""
+    counters: KnowledgeCounters
+    """Counts of DBNs, plans, landmarks, reliable actions, practice."""
+    values: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    """Labels of the qualitative values of each non-motor variable (goals a viewer may set)."""
+    self_vars: tuple[str, ...] = ()
+    """Variables the agent has found to be part of itself (§6.4)."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+@dataclass(frozen=True)
+class WorldView:
+    """What the world looks like now (topic ``world``), a few times a second."""
+
+    step: int
+    """Agent step."""
+    world: str
+    """World name, e.g. ``core2d``."""
+    text: str
+    """A top-down text drawing of the world (``world.render_text``), lines joined by ``\\n``."""
+    values: dict[str, float]
+    """Raw value of every sensed variable."""
+    motor: dict[str, float] = field(default_factory=dict)
+    """Motor values currently applied."""
+    qualitative: dict[str, str] = field(default_factory=dict)
+    """Qualitative value label of each variable, as the agent perceives it."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+@dataclass(frozen=True)
+class AgentStatus:
+    """The running agent's state (topic ``status``), a few times a second and after every
+    control command."""
+
+    step: int
+    """Latest agent step."""
+    steps_per_s: float
+    """Steps per second over the last second or so."""
+    mode: str
+    """The agent's mode: babble, command, practice, hold, goal, idle."""
+    paused: bool = False
+    """True while paused."""
+    finished: bool = False
+    """True once the run reached its last step (the driver then waits for ``quit``)."""
+    speed: float = 0.0
+    """Step-rate limit in steps/s; 0 = as fast as possible."""
+    clock: str = "free"
+    """``free`` (as fast as possible), ``realtime`` (paced at ``speed``) or ``lockstep``."""
+    placement: str = "embedded"
+    """``embedded`` (one process), ``local`` (processes on one host) or ``distributed``."""
+    world: str = ""
+    """World name."""
+    seed: int = 0
+    """Random seed of the run."""
+    goal: str = ""
+    """The goal action's label in goal mode, else empty."""
+    learning: bool = True
+    """Whether the agent learns."""
+    pending_deltas: int = 0
+    """Knowledge deltas computed but not yet applied (batch lag, DESIGN.md §4)."""
+    late_ticks: int = 0
+    """Realtime: ticks that started later than their deadline."""
+    missed_ticks: int = 0
+    """Realtime: ticks skipped altogether."""
+    wall_s: float = 0.0
+    """Seconds since the run started."""
+    message: str = ""
+    """The answer to the last control command, e.g. ``saved /tmp/ck/step-0004000``."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+Message = (Sense | QState | Motor | DeltaMsg | CallList | IACChoice | Stats | Control
+           | Knowledge | WorldView | AgentStatus)
 
 TOPIC_TYPES: dict[str, type] = {
     "sense": Sense, "qstate": QState, "motor": Motor, "delta/dbn": DeltaMsg,
     "delta/landmarks": DeltaMsg, "delta/plans": DeltaMsg, "calllist": CallList,
-    "iac": IACChoice, "stats": Stats, "control": Control}
+    "iac": IACChoice, "stats": Stats, "control": Control,
+    "knowledge": Knowledge, "world": WorldView, "status": AgentStatus}
 """The message type each topic carries."""
 
 MESSAGE_TYPES: tuple[type, ...] = (Sense, QState, Motor, DeltaMsg, CallList, IACChoice, Stats,
-                                   Control)
+                                   Control, Knowledge, WorldView, AgentStatus)
 
 SUPPORTED_VERSIONS: dict[type, frozenset[int]] = {t: frozenset({1}) for t in MESSAGE_TYPES}
 """Versions :func:`decode` accepts, per type."""
@@ -236,7 +422,31 @@ def _to_obj(msg: Any) -> dict[str, Any]:
     out = dict(msg.__dict__)  # fields in declaration order
     for name in _nested(type(msg)):
         out[name] = _to_obj(out[name])
+    for name in _deep(type(msg)):
+        out[name] = _jsonable(out[name])
     return out
+
+
+@cache
+def _deep(cls: type) -> tuple[str, ...]:
+    """Fields holding dataclasses inside tuples or dicts (the display messages)."""
+    hints = typing.get_type_hints(cls, globalns=globals())
+    return tuple(f.name for f in dataclasses.fields(cls)
+                 if not dataclasses.is_dataclass(hints[f.name]) and _holds_dataclass(hints[f.name]))
+
+
+def _holds_dataclass(tp: Any) -> bool:
+    return any(dataclasses.is_dataclass(a) or _holds_dataclass(a) for a in typing.get_args(tp))
+
+
+def _jsonable(v: Any) -> Any:
+    if dataclasses.is_dataclass(v):
+        return _to_obj(v)
+    if isinstance(v, tuple | list):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _jsonable(x) for k, x in v.items()}
+    return v
 
 
 @cache
