@@ -20,7 +20,7 @@ from .context import is_model_improvement, update_context
 from .contingency import PairStatistics, WindowLearner
 from .dbn import CHANGE, DBN, MAGNITUDE, ModelStats, context_cells, counts_by_cell, model_stats
 from .delta import Delta, Op
-from .landmarks import EventBinner, best_cut, candidate_range, is_candidate
+from .landmarks import EventBinner, best_cut, candidate_range, cut_gain_bounds, is_candidate
 from .params import Params
 from .perception import EventIndex, Percept, Perception
 from .probability import binary_entropy_array, dbn_entropy
@@ -165,6 +165,8 @@ class ModelLearner:
         self.pairs.update(step, p.event_ids)
         if not self.k_learned:
             self._update_window(p)
+        if self._index_dirty:
+            self._reindex()
         self._update_dbns(p)
         while self.pending_deltas and self.pending_deltas[0].apply_at <= step:
             self.apply_delta(self.pending_deltas.popleft())
@@ -286,6 +288,9 @@ class ModelLearner:
             else:
                 self._mag_by_var.setdefault(dbn.consequent.var, []).append(dbn)
         self._pairs_of = {(d.antecedent, d.consequent) for d in self.dbns.values()}
+        self._index_dirty = False
+
+    _index_dirty = False
 
     # ------------------------------------------------------------------------------------------
     # batches (Algorithm 2 lines 6–13)
@@ -538,51 +543,62 @@ class ModelLearner:
     def _learn_dbn_landmarks(self, step: int) -> None:
         p = self.params
         found: list[tuple[float, int, int, int, tuple]] = []   # wgain, dbn, var, q, proposal
-        prob_cache: dict[int, np.ndarray] = {}
+        real_vars = self.table.of_kind(Kind.MOTOR, Kind.MAGNITUDE)
+        cols = np.array([v.index for v in real_vars], dtype=np.int64)
+        spaces = self.perception.spaces
+        n_values = max([spaces[v.index].size for v in real_vars] + [1])
+        prob = np.zeros((len(real_vars), n_values))
+        for i, v in enumerate(real_vars):
+            pr = self._prob_interval(v.index, spaces[v.index])
+            prob[i, :len(pr)] = pr
         for dbn_id in sorted(self.dbns):
             dbn = self.dbns[dbn_id]
             if dbn.kind != CHANGE or dbn.act_n < p.min_data_points:
                 continue
             X, ok = dbn.stored()
-            r = self.evaluator(dbn)(dbn.context)
+            Q = self.perception.quantize(X)
+            cq = Q[:, dbn.context[0]] if len(dbn.context) == 1 else None  # §4.4.1 footnote 2
+            # Blocks whose gain bound cannot pass eq. 4.17 are skipped: best_cut there could
+            # only give a cut that is_candidate rejects.
+            bound, labels = cut_gain_bounds(X[:, cols], ok, Q[:, cols], n_values, cq)
+            with np.errstate(invalid="ignore"):
+                passing = (bound > p.theta_ig - _TOL) & \
+                    (bound * prob[:, :, None] > p.theta_ig / 2 - _TOL)
+            passing[:, 1::2, :] = False
+            if not passing.any():
+                continue
+            r: ModelStats | None = None
             best: tuple | None = None
-            for v in self.table.of_kind(Kind.MOTOR, Kind.MAGNITUDE):
+            for i, q, gi in np.argwhere(passing).tolist():
+                v = real_vars[i]
                 var = v.index
                 if var == dbn.antecedent.var and v.kind is not Kind.MOTOR:
                     continue                                            # App. D.2
                 col = X[:, var]
-                qv = self.perception.quantize_var(var, col)
-                space = self.perception.spaces[var]
-                if var not in prob_cache:
-                    prob_cache[var] = self._prob_interval(var, space)
-                groups = [np.ones(len(ok), dtype=bool)]
-                if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
-                    cq = self.perception.quantize_var(dbn.context[0], X[:, dbn.context[0]])
-                    groups += [cq == g for g in np.unique(cq[cq >= 0])]
-                for q in range(0, space.size, 2):
-                    in_q = qv == q
-                    if in_q.sum() < p.min_data_points:
-                        continue                                        # App. B.2 item 2
-                    for g in groups:
-                        m = in_q & g
-                        if m.sum() < 2:
-                            continue
-                        cut = best_cut(col[m], ok[m], p.cut_min_gap)
-                        if cut is None or not is_candidate(cut.gain, prob_cache[var][q],
-                                                           p.theta_ig):
-                            continue
-                        wgain = cut.gain * prob_cache[var][q]
-                        if best is not None and wgain <= best[0]:
-                            continue
-                        lb, ub = candidate_range(cut, float(col[in_q].min()),
-                                                 float(col[in_q].max()),
-                                                 self.perception.bin_size(var),
-                                                 use_bounds=v.kind is Kind.MAGNITUDE)
-                        if space.interval_of_range(lb, ub) != q:
-                            continue
-                        prop = self._landmark_proposal(dbn, r, var, lb, ub, X)
-                        if prop is not None:
-                            best = (wgain, dbn_id, var, q, prop)
+                space = spaces[var]
+                in_q = Q[:, var] == q
+                if in_q.sum() < p.min_data_points:
+                    continue                                            # App. B.2 item 2
+                m = in_q if gi == 0 else in_q & (cq == labels[gi - 1])
+                if m.sum() < 2:
+                    continue
+                cut = best_cut(col[m], ok[m], p.cut_min_gap)
+                if cut is None or not is_candidate(cut.gain, prob[i, q], p.theta_ig):
+                    continue
+                wgain = cut.gain * prob[i, q]
+                if best is not None and wgain <= best[0]:
+                    continue
+                lb, ub = candidate_range(cut, float(col[in_q].min()),
+                                         float(col[in_q].max()),
+                                         self.perception.bin_size(var),
+                                         use_bounds=v.kind is Kind.MAGNITUDE)
+                if space.interval_of_range(lb, ub) != q:
+                    continue
+                if r is None:
+                    r = self.evaluator(dbn)(dbn.context)
+                prop = self._landmark_proposal(dbn, r, var, lb, ub, X)
+                if prop is not None:
+                    best = (wgain, dbn_id, var, q, prop)
             if best is not None:
                 found.append(best)
         # D.2: one landmark per DBN (best weighted gain) and per (v, q).
@@ -651,7 +667,12 @@ class ModelLearner:
                                dbn_id, ante, ctx)
         else:
             raise ValueError(f"unknown delta operation {kind!r}")
-        self._reindex()
+        # The event indexes are only read per step: rebuilt once, before the next step. The set
+        # of (antecedent, consequent) pairs is kept exact after every operation (add_dbn adds to
+        # it; a landmark may remap events and a deletion may leave a duplicate's pair).
+        if kind in ("add_landmark", "delete_dbn"):
+            self._pairs_of = {(d.antecedent, d.consequent) for d in self.dbns.values()}
+        self._index_dirty = True
 
     def _add_dbn(self, kind: str, e1: Event, e2: Event, ctx: tuple[int, ...]) -> DBN | None:
         if (e1, e2) in self._pairs_of:
