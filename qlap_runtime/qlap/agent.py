@@ -22,7 +22,14 @@ import numpy as np
 
 from .actions import ActionKey, ActionTable, motor_value_for, plan_slots, targeted
 from .babble import Babbler
-from .curiosity import IACChoice, action_weight, choose_action, choose_plan, plan_weight
+from .curiosity import (
+    IACChoice,
+    action_weight,
+    choose_action,
+    choose_plan,
+    iac_weight,
+    plan_weight,
+)
 from .dbn import CHANGE, DBN, model_stats
 from .learner import ModelLearner
 from .mdp import Role, greedy_action, sarsa_reward
@@ -449,10 +456,15 @@ class Agent:
             plans = self._usable_plans(key, p, by_action[key])
             if not plans:
                 continue
-            idx = self._pick_plan(plans, p)
-            rel_os = None if idx is None else plans[idx].rel_state(self._o_cell(plans[idx], p.x))
+            stats = self.actions[key]
+            w = iac_weight(stats.history, self.params)
+            if w is None:                 # fewer than 50 calls: eq. 6.2 with the chosen plan
+                idx = self._pick_plan(plans, p)
+                rel_os = None if idx is None else \
+                    plans[idx].rel_state(self._state_cell(plans[idx].context_o, p.q))
+                w = action_weight(stats, rel_os, self.params)
             out.append(key)
-            weights.append(action_weight(self.actions[key], rel_os, self.params))
+            weights.append(w)
         return out, weights
 
     # ------------------------------------------------------------------------------------------
@@ -480,19 +492,31 @@ class Agent:
             cell = cell * sizes[v] + q
         return cell
 
+    def _state_cell(self, ctx: tuple[int, ...], q: np.ndarray) -> int:
+        """Mixed-radix cell of the current qualitative values of ``ctx`` (−1 if unavailable)."""
+        cell = 0
+        sizes = self.learner.perception.events.sizes
+        for v in ctx:
+            qv = int(q[v])
+            if qv < 0:
+                return -1
+            cell = cell * sizes[v] + qv
+        return cell
+
     def _pick_plan(self, plans: list[Plan], p: Percept) -> int | None:
         """§6.1.2: ε-greedy on w = rel(r, s)·rel(o, s); plans whose antecedent action is in
         the call list are excluded."""
         in_list = {f.key for f in self.call_list}
         w, excluded = [], []
+        prior = self.params.prior
         for plan in plans:
             dbn = self.learner.dbns[plan.dbn_id]
             excluded.append((dbn.antecedent.var, dbn.antecedent.value) in in_list)
-            cell = self.learner._cell_of(dbn, p.x)
+            cell = self._state_cell(dbn.context, p.q)
             s = dbn.cpt_s[cell] if 0 <= cell < len(dbn.cpt_s) else 0.0
             f = dbn.cpt_f[cell] if 0 <= cell < len(dbn.cpt_f) else 0.0
-            rel_rs = (s + self.params.prior) / (s + f + 2 * self.params.prior)
-            w.append(plan_weight(rel_rs, plan.rel_state(self._o_cell(plan, p.x))))
+            rel_rs = (s + prior) / (s + f + 2 * prior)
+            w.append(plan_weight(rel_rs, plan.rel_state(self._state_cell(plan.context_o, p.q))))
         return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
 
     def _call(self, key: ActionKey, p: Percept, practised: bool = False) -> str:

@@ -103,14 +103,16 @@ def choose_plan(plans_w: Sequence[float], excluded: Sequence[bool], rng: np.rand
     """
     if len(plans_w) != len(excluded):
         raise ValueError(f"{len(plans_w)} plan weights but {len(excluded)} exclusion flags")
-    cand = np.flatnonzero(~np.asarray(excluded, dtype=bool))
-    if cand.size == 0:
+    # Plain Python: an action has at most three plans, and this runs for every applicable
+    # action at every IAC choice, where numpy's per-call overhead dominated.
+    cand = [i for i, e in enumerate(excluded) if not e]
+    if not cand:
         return None
     if rng.random() < epsilon:
-        return int(rng.choice(cand))
-    w = np.asarray(plans_w, dtype=float)[cand]
-    best = cand[w == w.max()]
-    return int(best[0]) if best.size == 1 else int(rng.choice(best))
+        return cand[int(rng.integers(len(cand)))]
+    best = max(float(plans_w[i]) for i in cand)
+    top = [i for i in cand if float(plans_w[i]) == best]
+    return top[0] if len(top) == 1 else top[int(rng.integers(len(top)))]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,0 +1,68 @@
+#!/usr/bin/env python3
+"""Benchmark of the synchronous agent loop (Algorithm 2) with all learning on.
+
+Runs the agent in a world (default: core) and prints agent steps per second overall, during
+motor babbling and during practice (IAC, plans, call list), the time spent in batches, and what
+was learned. Budget (DESIGN.md §8): ≥ 2,000 steps/s overall on core; aim for 5,000.
+
+Usage: scripts/bench_agent.py [--world core] [--steps 30000] [--babble-steps 20000] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import worlds
+from qlap_runtime.agent_run import params_for_world
+from qlap_runtime.qlap import Params
+from qlap_runtime.qlap.agent import Agent
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--world", default="core")
+    ap.add_argument("--steps", type=int, default=30_000)
+    ap.add_argument("--babble-steps", type=int, default=20_000)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    world = worlds.make(args.world)
+    params = params_for_world(world, Params(babble_steps=args.babble_steps))
+    agent = Agent(world.variables, params, seed=args.seed)
+    obs = world.reset(seed=args.seed)
+    period = params.dbn_period
+    t_babble = t_practice = t_batch = 0.0
+    n_babble = n_practice = 0
+    start = time.perf_counter()
+    for t in range(args.steps):
+        t0 = time.perf_counter()
+        motor = agent.step(t, obs)
+        obs = world.step(motor)
+        dt = time.perf_counter() - t0
+        if t > 0 and t % period == 0:
+            t_batch += dt
+        elif t < params.babble_steps:
+            t_babble += dt
+            n_babble += 1
+        else:
+            t_practice += dt
+            n_practice += 1
+    wall = time.perf_counter() - start
+    world.close()
+    print(f"{args.world}: {args.steps} steps in {wall:.1f} s = {args.steps / wall:,.0f} steps/s "
+          "overall (world included)")
+    if n_babble:
+        print(f"  babbling steps : {n_babble / t_babble:,.0f} steps/s")
+    if n_practice:
+        print(f"  practice steps : {n_practice / t_practice:,.0f} steps/s")
+    n_batches = (args.steps - 1) // period
+    print(f"  batches        : {n_batches} taking {t_batch:.1f} s "
+          f"({t_batch / max(1, n_batches) * 1e3:.0f} ms each on average)")
+    c = agent.counters
+    print(f"  learned: {len(agent.learner.dbns)} DBNs, {len(agent.plans)} plans, "
+          f"{sum(len(s.landmarks) for s in agent.learner.perception.spaces)} landmarks; "
+          f"{c.practice_calls} practice calls ({c.successes} succeeded)")
+
+
+if __name__ == "__main__":
+    main()
