@@ -1,0 +1,343 @@
+"""The local driver: the synchronous agent in a worker thread, publishing telemetry on Zenoh.
+
+``qlap run`` in a terminal uses it until the actor runtime exists: the agent steps in its own
+thread (never waiting for a viewer), publishes the display topics of
+:mod:`qlap_runtime.telemetry` with ``CongestionControl.DROP`` on an embedded session (no
+sockets; ``listen=[...]`` lets outside viewers attach, ``qlap tui --connect``), and obeys
+:class:`~qlap_runtime.bus.schema.Control` messages on ``qlap/<run>/control``:
+
+=========  =========================================================================
+pause      stop stepping (publishes a status at once)
+resume     go on
+step       ``{"n": 1}``: advance n steps while paused
+speed      ``{"steps_per_s": x}``: pace the run at x steps/s (realtime clock); 0 = free
+save       ``{"path": dir}`` (optional): checkpoint via ``save_agent``
+goal       ``{"var": name, "value": label or index}`` → ``agent.set_goal``; ``{"clear": true}``
+quit       stop the run (the thread ends; the driver's owner closes the session)
+=========  =========================================================================
+
+The viewer sees only bus messages, so the actor runtime's executor can later publish the same
+telemetry and the TUI will not notice.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from qlap_runtime import telemetry
+from qlap_runtime.bus import keys
+from qlap_runtime.bus.bridge import Publisher, declare_alive
+from qlap_runtime.bus.config import embedded_config
+from qlap_runtime.bus.schema import Control, MessageError, decode
+
+log = logging.getLogger("qlap.tui.driver")
+
+DISPLAY = ("calllist", "iac", "knowledge", "world", "status", "stats")
+
+
+class LocalDriver:
+    """Runs ``agent`` in ``world`` in a thread and publishes its telemetry.
+
+    Args:
+        world: a world (``worlds.make(...)``); reset with ``seed`` unless ``reset=False``.
+        agent: the agent (built from the world with ``params`` when None).
+        steps: stop after this many steps (None: until quit); the driver then reports
+            ``finished`` and waits for ``quit``.
+        session: a Zenoh session to publish on; when None the driver opens an embedded one
+            (``listen`` endpoints, if any) and closes it in :meth:`stop`.
+        run_id: the run's id (a fresh one by default).
+        speed: steps/s limit (0 = as fast as possible); paused: start paused.
+        checkpoint_dir: where ``save`` writes (``<dir>/step-NNNNNNN``).
+        on_finish: called in the worker thread with the driver when the last step is done
+            (e.g. to write ``knowledge.json``).
+    """
+
+    def __init__(self, world: Any, agent: Any = None, *, seed: int = 0,
+                 params: Any = None, steps: int | None = None,
+                 session: zenoh.Session | None = None, listen: Sequence[str] = (),
+                 run_id: str | None = None, speed: float = 0.0, paused: bool = False,
+                 checkpoint_dir: Path | str = "qlap-checkpoints", reset: bool = True,
+                 cadence: telemetry.Cadence | None = None, on_finish: Any = None) -> None:
+        from qlap_runtime.agent_run import params_for_world
+        from qlap_runtime.qlap.agent import Agent
+
+        self.world = world
+        self.seed = seed
+        if agent is None:
+            agent = Agent(world.variables, params_for_world(world, params), seed=seed)
+        self.agent = agent
+        self.steps = steps
+        self.run_id = keys.validate_run_id(run_id) if run_id else keys.new_run_id()
+        self.speed = float(speed)
+        self.paused = paused
+        self.checkpoint_dir = Path(checkpoint_dir)
+        self.cadence = cadence or telemetry.Cadence()
+        self.on_finish = on_finish
+        self._listen = list(listen)
+        self._own_session = session is None
+        self._session = session
+        self._reset = reset
+        self._controls: deque[Control] = deque()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._step_budget = 0
+        self._message = ""
+        self._started = 0.0
+        self._late = 0
+        self._missed = 0
+        self._obs: Mapping[str, float] = {}
+        self._motor: dict[str, float] = {}
+        self.finished = False
+        self.error: BaseException | None = None
+        self.steps_done = 0
+        """Steps run by this driver (read from other threads for tests and benches)."""
+
+    # ----------------------------------------------------------------------------- lifecycle
+    @property
+    def session(self) -> zenoh.Session:
+        assert self._session is not None, "start() the driver first"
+        return self._session
+
+    def open(self) -> zenoh.Session:
+        """Open the embedded session (if none was given) without starting the agent."""
+        if self._session is None:
+            self._session = zenoh.open(embedded_config(self._listen))
+        return self._session
+
+    def start(self) -> LocalDriver:
+        """Open the session if needed, subscribe to control and start the worker thread."""
+        session = self.open()
+        self._pubs = {t: Publisher(session, self.run_id, t) for t in DISPLAY}
+        self._control_sub = session.declare_subscriber(keys.key(self.run_id, "control"),
+                                                       self._on_control)
+        self._token = declare_alive(session, self.run_id, "agent")
+        if self._reset:
+            self._obs = self.world.reset(seed=self.seed)
+        else:
+            self._obs = dict(self.world.observation)
+        self._motor = dict(self.agent.motor)
+        self._thread = threading.Thread(target=self._main, name=f"qlap-agent-{self.run_id}",
+                                        daemon=True)
+        self._started = time.perf_counter()
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop the worker thread, undeclare everything, close the session if the driver
+        opened it. Idempotent."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            if self._thread.is_alive():  # pragma: no cover - a step never takes that long
+                log.error("agent thread did not stop within %.1f s", timeout)
+        for obj in [getattr(self, "_control_sub", None), getattr(self, "_token", None),
+                    *getattr(self, "_pubs", {}).values()]:
+            if obj is None:
+                continue
+            try:
+                obj.undeclare() if not isinstance(obj, Publisher) else obj.close()
+            except zenoh.ZError:  # pragma: no cover - already gone
+                pass
+        self._pubs = {}
+        self._control_sub = self._token = None
+        if self._own_session and self._session is not None:
+            self._session.close()
+            self._session = None
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait until the worker thread ends (quit or stop); True if it did."""
+        if self._thread is None:
+            return True
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    def __enter__(self) -> LocalDriver:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ----------------------------------------------------------------------------- control
+    def _on_control(self, sample: zenoh.Sample) -> None:
+        # Zenoh's thread (or the publisher's, same session): only queue and wake.
+        try:
+            msg = decode(str(sample.key_expr), sample.payload.to_bytes())
+        except MessageError as e:
+            log.warning("rejected control message: %s", e)
+            return
+        self._controls.append(msg)  # type: ignore[arg-type]
+        self._wake.set()
+
+    def command(self, command: str, **args: Any) -> None:
+        """Queue a control command directly (same effect as one arriving on the bus)."""
+        self._controls.append(Control(command, args))  # type: ignore[arg-type]
+        self._wake.set()
+
+    def _apply(self, c: Control) -> None:
+        a = c.args
+        if c.command == "pause":
+            self.paused, self._step_budget = True, 0
+            self._message = "paused"
+        elif c.command == "resume":
+            self.paused, self._step_budget = False, 0
+            self._message = "resumed"
+        elif c.command == "step":
+            self.paused = True
+            self._step_budget += max(1, int(a.get("n", 1)))
+            self._message = f"step {self._step_budget}"
+        elif c.command == "speed":
+            self.speed = max(0.0, float(a.get("steps_per_s", 0.0)))
+            self._message = f"speed {self.speed:g} steps/s" if self.speed else "speed: free"
+            self._tick0 = None
+        elif c.command == "save":
+            from qlap_runtime.qlap.checkpoint import save_agent
+
+            path = Path(a["path"]) if a.get("path") else (
+                self.checkpoint_dir / f"step-{max(self.agent.step_count + 1, 0):07d}")
+            try:
+                save_agent(self.agent, path)
+                self._message = f"saved {path}"
+            except Exception as e:
+                self._message = f"save failed: {type(e).__name__}: {e}"
+        elif c.command == "goal":
+            if a.get("clear") or a.get("var") in (None, ""):
+                self.agent.clear_goal()
+                self._message = "goal cleared"
+            else:
+                try:
+                    value = a.get("value")
+                    key = self._goal_value(str(a["var"]), value)
+                    self.agent.set_goal(*key)
+                    self._message = f"goal {telemetry.pretty(self.agent.action_label(key))}"
+                except (ValueError, KeyError, TypeError) as e:
+                    self._message = f"goal refused: {e}"
+        elif c.command == "quit":
+            self._message = "quit"
+            self._stop.set()
+
+    def _goal_value(self, var: str, value: Any) -> tuple[int, int]:
+        agent = self.agent
+        vi = agent.table.index(var)
+        if isinstance(value, int):
+            return vi, value
+        labels = [agent.learner.value_label(vi, q)
+                  for q in range(int(agent.learner.perception.events.sizes[vi]))]
+        for q, label in enumerate(labels):
+            if str(value) in (label, telemetry.pretty(label)):
+                return vi, q
+        raise ValueError(f"{value!r} is not a value of {var} ({', '.join(labels)})")
+
+    # ----------------------------------------------------------------------------- the loop
+    def _main(self) -> None:
+        try:
+            self._loop()
+        except BaseException as e:  # report, never hang the UI
+            self.error = e
+            self._message = f"agent stopped: {type(e).__name__}: {e}"
+            log.exception("agent thread failed")
+            try:
+                self._publish(time.perf_counter(), force=True)
+            except Exception:  # pragma: no cover
+                pass
+
+    def _loop(self) -> None:
+        from qlap_runtime.qlap.perception import InvalidObservation
+
+        agent, world = self.agent, self.world
+        self._tick0: tuple[float, int] | None = None
+        self._publish(time.perf_counter(), force=True)
+        while not self._stop.is_set():
+            changed = False
+            while self._controls:
+                self._apply(self._controls.popleft())
+                changed = True
+            if changed:
+                self._publish(time.perf_counter(), force=True)
+                if self._stop.is_set():
+                    break
+            if self.finished or (self.paused and self._step_budget <= 0):
+                self._wake.wait(0.25)
+                self._wake.clear()
+                self._publish(time.perf_counter())
+                continue
+            t = agent.step_count + 1
+            try:
+                self._motor = agent.step(t, self._obs)
+            except InvalidObservation as e:
+                log.warning("step %d: %s", t, e)
+            self._obs = world.step(self._motor)
+            self.steps_done += 1
+            if self._step_budget > 0:
+                self._step_budget -= 1
+                if self._step_budget == 0:
+                    self._publish(time.perf_counter(), force=True)
+            if self.steps is not None and self.steps_done >= self.steps:
+                self.finished = True
+                self._message = f"finished {self.steps_done} steps"
+                if self.on_finish is not None:
+                    self.on_finish(self)
+                self._publish(time.perf_counter(), force=True)
+                continue
+            now = time.perf_counter()
+            self._publish(now)
+            if self.speed > 0 and not self.paused:
+                self._pace(now)
+
+    def _pace(self, now: float) -> None:
+        """Realtime clock: tick n starts at t0 + n / speed; count late and missed ticks."""
+        if self._tick0 is None:
+            self._tick0 = (now, self.steps_done)
+            return
+        t0, n0 = self._tick0
+        deadline = t0 + (self.steps_done - n0) / self.speed
+        delay = deadline - now
+        if delay > 0:
+            self._wake.wait(delay)
+            self._wake.clear()
+        elif -delay > 1.0 / self.speed:
+            self._late += 1
+            if -delay > 1.0:                  # more than a second behind: skip ahead
+                self._missed += int(-delay * self.speed)
+                self._tick0 = (now, self.steps_done)
+
+    # ----------------------------------------------------------------------------- publish
+    def status(self, now: float | None = None) -> Any:
+        now = time.perf_counter() if now is None else now
+        return telemetry.status_msg(
+            self.agent, steps_per_s=self.cadence.steps_per_s(now, self.agent.step_count),
+            paused=self.paused, finished=self.finished, speed=self.speed,
+            clock="realtime" if self.speed > 0 else "free", placement="embedded",
+            world=str(getattr(self.world, "name", "")), seed=self.seed,
+            late_ticks=self._late, missed_ticks=self._missed, wall_s=now - self._started,
+            message=self._message)
+
+    def _publish(self, now: float, force: bool = False) -> None:
+        agent, cad, pubs = self.agent, self.cadence, self._pubs
+        if cad.display_due(now) or force:
+            for msg in telemetry.iac_msgs(agent, cad.last_iac_step):
+                pubs["iac"].put(msg)
+                cad.last_iac_step = msg.step
+            pubs["calllist"].put(telemetry.call_list_msg(agent))
+            pubs["world"].put(telemetry.world_msg(agent, self.world))
+            status = self.status(now)
+            pubs["status"].put(status)
+            if cad.stats_due(now):
+                pubs["stats"].put(telemetry.stats_msg(status))
+        sig = telemetry.knowledge_signature(agent)
+        if cad.knowledge_due(now, agent.step_count, sig) or (force and sig != cad.last_signature):
+            cad.last_signature = sig
+            pubs["knowledge"].put(telemetry.knowledge_msg(agent))

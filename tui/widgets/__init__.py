@@ -1,0 +1,15 @@
+"""The TUI's panels, one per module (STYLE.md)."""
+
+from .actions import ActionsPanel
+from .calllist import CallListPanel
+from .counters import CountersPanel
+from .goal import GoalScreen
+from .help import HelpScreen
+from .iac import IACPanel
+from .landmarks import LandmarksPanel
+from .plans import PlansPanel
+from .runtime import RuntimePanel
+from .world import WorldPanel
+
+__all__ = ["ActionsPanel", "CallListPanel", "CountersPanel", "GoalScreen", "HelpScreen",
+           "IACPanel", "LandmarksPanel", "PlansPanel", "RuntimePanel", "WorldPanel"]
