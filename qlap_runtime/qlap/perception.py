@@ -196,8 +196,13 @@ class Perception:
         X = x[None, :] if single else x
         Q = np.full(X.shape, -1, dtype=np.int64)
         xo = X[:, self._ordered_idx]                                   # (T, m)
-        less = self._ub[None, :, :] < xo[:, :, None]                   # (T, m, L)
-        j = less.sum(axis=2)
+        if len(X) > 8:
+            # One searchsorted per variable: j = #{ub < x} as below (NaN: masked to −1).
+            j = np.empty(xo.shape, dtype=np.int64)
+            for r, nl in enumerate(self._nlm.tolist()):
+                j[:, r] = np.searchsorted(self._ub[r, :nl], xo[:, r], side="left")
+        else:
+            j = (self._ub[None, :, :] < xo[:, :, None]).sum(axis=2)   # (T, m, L) -> (T, m)
         jc = np.minimum(j, self._lb.shape[1] - 1)
         lbj = self._lb[self._rows[None, :], jc]
         at = (j < self._nlm[None, :]) & (xo >= lbj)
