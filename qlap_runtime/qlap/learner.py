@@ -613,7 +613,9 @@ class ModelLearner:
     def _landmark_proposal(self, dbn: DBN, r: ModelStats, var: int, lb: float, ub: float,
                            X: np.ndarray) -> tuple | None:
         """Step 4 of §4.4.1: r' with the landmark; returned if isModelImprovement(r, r')."""
-        space = copy.deepcopy(self.perception.spaces[var])
+        src = self.perception.spaces[var]
+        space = copy.copy(src)                      # landmarks are immutable: copy the list only
+        space.landmarks = list(src.landmarks)
         try:
             split = space.insert(Landmark(lb, ub))
         except ValueError:

@@ -72,3 +72,26 @@ def test_event_bins_global_normalisation_when_local_fails():
     # global at bin 10: 150/450 - 50/1000 = 0.28333 > 0.2 (local 0.19 fails)
     assert found2 is not None and found2.normalisation == "global"
     assert found2.delta == pytest.approx(150 / 450 - 0.05)
+
+
+def test_cut_gain_bounds_bound_every_block_best_cut():
+    from qlap_runtime.qlap.landmarks import cut_gain_bounds
+
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        n, V = int(rng.integers(2, 120)), 3
+        X = np.round(rng.normal(size=(n, V)), int(rng.integers(0, 3)))
+        X[rng.random(X.shape) < 0.05] = np.nan
+        ok = rng.random(n) < rng.random()
+        Q = np.where(np.isnan(X), -1, (X > -0.5).astype(int) * 2 + (X > 0.5) * 2)
+        groups = rng.integers(-1, 3, size=n)
+        bound, labels = cut_gain_bounds(X, ok, Q, 5, groups)
+        for j in range(V):
+            for q in range(5):
+                for gi, g in enumerate([None, *labels.tolist()]):
+                    m = (Q[:, j] == q) & (True if g is None else groups == g)
+                    cut = best_cut(X[m, j], ok[m]) if m.sum() >= 2 else None
+                    if cut is not None:
+                        assert cut.gain <= bound[j, q, gi] + 1e-12
+                    if m.sum() < 2:
+                        assert bound[j, q, gi] == -np.inf

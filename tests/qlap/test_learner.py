@@ -120,3 +120,31 @@ def test_observe_rejects_bad_input_and_keeps_going():
         learner.observe(1, {"u": 0.0, "x": float("nan")})
     learner.observe(1, {"u": 0.5, "x": 1.0})
     assert learner.step == 1
+
+
+def test_all_candidates_at_once_choose_as_one_at_a_time(learned: ModelLearner):
+    """Algorithm 3's vectorised round picks the option and statistics of the default."""
+    from qlap_runtime.qlap.learner import _StoredActivations
+
+    import copy
+
+    rng = np.random.default_rng(0)
+    learner = copy.deepcopy(learned)
+    for dbn in learner.dbns.values():
+        if dbn.act_n < 1:
+            continue
+        dbn.act_ok[: dbn.act_n] = rng.random(dbn.act_n) < 0.5
+        acts = _StoredActivations(learner, dbn)
+        ev = learner.evaluator(dbn)
+        cands = list(range(len(learner.table)))
+        for ctx in [(), *((v,) for v in cands)]:
+            options = [v for v in cands if v not in ctx]
+            scored = [(v, ev(tuple(sorted((*ctx, v))))) for v in options]
+            for by_entropy in (False, True):
+                if by_entropy:
+                    want = min(scored, key=lambda p: (p[1].entropy, p[0]))
+                else:
+                    want = max(scored, key=lambda p: (-1.0 if p[1].brel is None else p[1].brel,
+                                                      -p[0]))
+                assert acts.choose(ctx, options, by_entropy) == want
+            assert acts.evaluate(ctx) == ev(ctx)
