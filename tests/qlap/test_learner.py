@@ -124,9 +124,9 @@ def test_observe_rejects_bad_input_and_keeps_going():
 
 def test_all_candidates_at_once_choose_as_one_at_a_time(learned: ModelLearner):
     """Algorithm 3's vectorised round picks the option and statistics of the default."""
-    from qlap_runtime.qlap.learner import _StoredActivations
-
     import copy
+
+    from qlap_runtime.qlap.learner import _StoredActivations
 
     rng = np.random.default_rng(0)
     learner = copy.deepcopy(learned)
