@@ -70,6 +70,12 @@ class QState:
     events: tuple[tuple[str, int, int], ...] = ()
     """Events X → x at t as (variable name, qualitative value, direction); direction is +1
     for ↑, −1 for ↓ on magnitudes, else 0 (§3.2)."""
+    x: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Real values at t by variable name, the directions of change (``<name>.dot``) included;
+    variables not yet available are absent. The learners keep their statistics from these."""
+    rejected: str = ""
+    """Non-empty when ``sense(t)`` was rejected (e.g. a NaN): the reason. Every actor then
+    skips step t, as the synchronous loop does (the executor repeats its last motor values)."""
     version: int = 1
     """Schema version of this message type."""
 

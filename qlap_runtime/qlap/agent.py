@@ -146,11 +146,16 @@ class Agent:
         else:
             x = self.learner.perception.vector(full)
             p = self.learner.perception.perceive(t, x, copy=False)
-        self.step_count = t
+        return self.decide(p)
+
+    def decide(self, p: Percept) -> dict[str, float]:
+        """After the learner observed ``p`` (and applied the deltas due): plans follow the new
+        knowledge (Algorithm 2 line 15), then the executor chooses the motor command."""
+        self.step_count = p.step
         self._last_percept = p
         if self.learner.applied_count != self._seen_applied:
             self._seen_applied = self.learner.applied_count
-            self._after_batch(t)
+            self._after_batch(p.step)
         self._act(p)
         return dict(self.motor)
 
