@@ -54,7 +54,11 @@ class GoalScreen(ModalScreen[GoalChoice | bool]):
         if event.select.id == "goal-var":
             values = self.query_one("#goal-value", Select)
             var = event.value if isinstance(event.value, str) else None
-            values.set_options(self._value_options(var))
+            options = self._value_options(var)
+            keep = values.value
+            values.set_options(options)
+            if any(keep == v for _, v in options):
+                values.value = keep
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
         if event.button.id == "goal-set":

@@ -1,0 +1,178 @@
+"""Pilot tests: the UI against a real agent (the local driver on an embedded Zenoh session).
+
+pytest runs async tests under trio (``trio_mode``); Textual needs asyncio, so each test is a
+plain function running its coroutine with ``asyncio.run``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+from qlap_runtime.bus import keys
+from tests.tui.conftest import make_driver
+from tui import QlapApp
+from tui.widgets import ActionsPanel, GoalScreen, PlansPanel
+
+SIZE = (160, 50)
+
+
+async def until(pilot, predicate, within: float = 60.0) -> None:
+    deadline = time.monotonic() + within
+    while not predicate():
+        assert time.monotonic() < deadline, "condition not reached in the UI"
+        await pilot.pause(0.05)
+
+
+async def select(pilot, panel: ActionsPanel, label: str) -> None:
+    """Put the cursor on ``label``'s row (rows move as the snapshot re-sorts them)."""
+    panel.table.focus()
+    panel.table.move_cursor(row=panel.table.get_row_index(label), animate=False)
+    await until(pilot, lambda: panel.selected == label)
+    await pilot.pause(0.1)
+
+
+def test_actions_appear_and_selecting_one_shows_its_plans(driver):
+    async def main():
+        app = QlapApp(driver.session, run_id=driver.run_id)
+        async with app.run_test(size=SIZE) as pilot:
+            await until(pilot, lambda: app.knowledge is not None and any(
+                a.plans for a in app.knowledge.actions))
+            panel = app.query_one(ActionsPanel)
+            await until(pilot, lambda: panel.table.row_count > 0)
+            with_plans = [a.label for a in app.knowledge.actions if a.plans]
+            await select(pilot, panel, with_plans[0])
+            await pilot.press("down", "up")                   # the keys move the selection
+            await until(pilot, lambda: panel.selected == with_plans[0])
+            plans = app.query_one(PlansPanel)
+            assert plans.action is not None and plans.action.label == panel.selected
+            assert plans.plan_labels() and all(lbl.startswith("⟨") for lbl in plans.plan_labels())
+            assert plans.query_one("DataTable").row_count == len(plans.action.plans)
+            assert app.status is not None and app.status.world == "core2d"
+            assert "agent" in app.alive
+            assert app.world is not None and app.world.world == "core2d"
+            before = panel.sort_by
+            await pilot.press("o")
+            assert panel.sort_by != before
+    asyncio.run(main())
+
+
+def test_pause_stops_the_step_counter_single_step_and_resume(driver):
+    async def main():
+        app = QlapApp(driver.session, run_id=driver.run_id)
+        async with app.run_test(size=SIZE) as pilot:
+            await until(pilot, lambda: app.status is not None and not app.status.paused)
+            await pilot.press("p")
+            await until(pilot, lambda: app.status.paused)
+            step = app.status.step
+            await pilot.pause(0.5)
+            assert app.status.step == step == driver.agent.step_count
+            await pilot.press("s")
+            await until(pilot, lambda: app.status.step == step + 1)
+            await pilot.pause(0.3)
+            assert driver.agent.step_count == step + 1 and app.status.paused
+            await pilot.press("p")
+            await until(pilot, lambda: not app.status.paused and app.status.step > step + 50)
+    asyncio.run(main())
+
+
+def test_speed_checkpoint_and_help(driver, tmp_path):
+    async def main():
+        app = QlapApp(driver.session, run_id=driver.run_id)
+        async with app.run_test(size=SIZE) as pilot:
+            await until(pilot, lambda: app.status is not None)
+            await pilot.press("minus")
+            await until(pilot, lambda: app.status.speed == 1000.0
+                        and app.status.clock == "realtime")
+            await pilot.press("minus")
+            await until(pilot, lambda: app.status.speed == 300.0)
+            await pilot.press("plus", "plus")
+            await until(pilot, lambda: app.status.speed == 0.0 and app.status.clock == "free")
+            await pilot.press("c")
+            await until(pilot, lambda: app.status.message.startswith("saved "))
+            saved = app.status.message.removeprefix("saved ")
+            assert (driver.checkpoint_dir / saved.rsplit("/", 1)[-1]).is_dir()
+            await pilot.press("question_mark")
+            assert app.screen.__class__.__name__ == "HelpScreen"
+            await pilot.press("escape")
+            assert app.screen.__class__.__name__ != "HelpScreen"
+    asyncio.run(main())
+
+
+def test_goal_dialog_sets_and_clears_a_goal(driver):
+    async def main():
+        app = QlapApp(driver.session, run_id=driver.run_id)
+        async with app.run_test(size=SIZE) as pilot:
+            await until(pilot, lambda: app.knowledge is not None and any(
+                a.plans for a in app.knowledge.actions))
+            target = next(a for a in app.knowledge.actions if a.plans)
+            panel = app.query_one(ActionsPanel)
+            await select(pilot, panel, target.label)
+            await pilot.press("g")
+            assert isinstance(app.screen, GoalScreen)
+            await pilot.click("#goal-set")      # pre-filled with the selected action
+            await until(pilot, lambda: app.status.goal == target.label, within=15)
+            assert driver.agent.goal is not None
+            assert app.status.mode in ("goal", "idle", "babble")
+            await pilot.press("g")
+            await pilot.click("#goal-clear")
+            await until(pilot, lambda: app.status.goal == "")
+            assert driver.agent.goal is None
+    asyncio.run(main())
+
+
+def test_quit_closes_everything_and_stops_an_owned_driver():
+    before = {t.ident for t in threading.enumerate()}
+    d = make_driver(run_id="quit-test")
+    d.start()
+
+    async def main():
+        app = QlapApp(driver=d)
+        async with app.run_test(size=SIZE) as pilot:
+            await until(pilot, lambda: app.status is not None and app.status.step > 0)
+            await pilot.press("q")
+        return app
+
+    t0 = time.monotonic()
+    app = asyncio.run(main())
+    assert time.monotonic() - t0 < 30
+    assert not d.alive and d._session is None and app._session is None
+    assert app.return_code in (0, None)
+    time.sleep(0.2)
+    leftover = [t.name for t in threading.enumerate() if t.ident not in before]
+    assert leftover == [], leftover
+
+
+def test_a_viewer_on_loopback_attaches_to_a_listening_driver(tmp_path):
+    """`qlap tui --connect`: the driver listens on loopback, the UI connects as a client."""
+    import zenoh
+
+    from qlap_runtime.bus import router_config
+    from tests.runtime.conftest import free_port
+
+    port = free_port()
+    with zenoh.open(router_config([f"tcp/127.0.0.1:{port}"])):
+        d = make_driver(run_id="remote", session=None)
+        d._listen = []
+        from qlap_runtime.bus.config import client_config
+
+        d._session = zenoh.open(client_config([f"tcp/127.0.0.1:{port}"]))
+        d._own_session = True
+        d.start()
+        try:
+            async def main():
+                app = QlapApp(connect=f"tcp/127.0.0.1:{port}")     # run id learned from the bus
+                async with app.run_test(size=SIZE) as pilot:
+                    await until(pilot, lambda: app.status is not None and app.status.step > 0)
+                    assert app.run_id == "remote" and "agent" in app.alive
+                    await pilot.press("p")
+                    await until(pilot, lambda: app.status.paused)
+                    await pilot.press("q")
+                return app
+            app = asyncio.run(main())
+            assert app._session is None
+            assert d.alive and d.paused            # quitting a viewer does not stop the agent
+        finally:
+            d.stop()
+    assert keys.validate_run_id("remote")
