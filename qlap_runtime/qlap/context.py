@@ -59,7 +59,6 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
     default would pick for one round (the lowest entropy if ``by_entropy``, else the highest
     brel, ties to the lower index) — a faster way to score all options at once.
     """
-    r = evaluate(tuple(current))
     ctx: tuple[int, ...] = ()
     r1 = evaluate(ctx)
     while len(ctx) < params.max_context_vars:
@@ -80,6 +79,9 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
             break
         ctx = tuple(sorted((*ctx, v)))
         r1 = r2
-    if tuple(sorted(current)) != ctx and is_model_improvement(r, r1, params):
-        return ctx
+    if tuple(sorted(current)) != ctx:
+        # r: the DBN under its current context (evaluated only when needed; evaluate is pure).
+        r = evaluate(tuple(current))
+        if is_model_improvement(r, r1, params):
+            return ctx
     return None

@@ -44,11 +44,14 @@ class _StoredActivations:
     those of :func:`~.context.update_context`'s default.
     """
 
-    def __init__(self, learner: ModelLearner, dbn: DBN) -> None:
+    def __init__(self, learner: ModelLearner, dbn: DBN, cols=None) -> None:
+        """``cols``: the variables that will be evaluated (default: all)."""
         X, ok = dbn.stored()
         self.X, self.ok = X, ok
-        self.Q = learner.perception.quantize(X) if len(X) else \
-            np.zeros((0, len(learner.table)), dtype=np.int64)
+        n_vars = len(learner.table)
+        cols = np.arange(n_vars) if cols is None else np.asarray(sorted(set(cols)), dtype=int)
+        self.Q = np.full((len(X), n_vars), -1, dtype=np.int64)   # only ``cols`` are filled
+        self.Q[:, cols] = learner.perception.quantize_columns(X, cols)
         self.okf = ok.astype(float)
         self.sizes = np.asarray(learner.perception.events.sizes, dtype=np.int64)
         self.params = learner.params
@@ -382,11 +385,15 @@ class ModelLearner:
             found4 = self.pairs.contingencies(theta, p.min_data_points, p.prior,
                                               p.beta_confidence)
             candidates = [(index.decode(e1), index.decode(e2)) for e1, e2, _, _ in found4]
+        # The reliable change DBNs' consequents: adding DBNs (never reliable yet) keeps them.
+        reliable = {(d.consequent.var, d.consequent.value) for d in self.dbns.values()
+                    if d.kind == CHANGE and d.ever_reliable}
         for e1, e2 in sorted(candidates):
-            if self._may_add_dbn(e1, e2):
+            if self._may_add_dbn(e1, e2, reliable):
                 self._do(("add_dbn", CHANGE, list(e1), list(e2), []))
 
-    def _may_add_dbn(self, e1: Event, e2: Event) -> bool:
+    def _may_add_dbn(self, e1: Event, e2: Event,
+                     reliable_cons: set[tuple[int, int]] | None = None) -> bool:
         if (e1, e2) in self._pairs_of:
             return False
         if (e2.var, e2.value) in self.reliable_actions:
@@ -396,24 +403,24 @@ class ModelLearner:
         kind = self.table[e1.var].kind
         if kind is Kind.MOTOR:
             return True
-        reliable = [d for d in self.dbns.values() if d.kind == CHANGE and d.ever_reliable]
+        if reliable_cons is None:
+            reliable_cons = {(d.consequent.var, d.consequent.value) for d in self.dbns.values()
+                             if d.kind == CHANGE and d.ever_reliable}
         if kind is Kind.MAGNITUDE:                                   # §6.2.3: can move v
             dot = self._dot_of[e1.var]
-            return any(d.consequent.var == dot for d in reliable)
-        return any(d.consequent.var == e1.var and d.consequent.value == e1.value
-                   for d in reliable)
+            return any(var == dot for var, _ in reliable_cons)
+        return (e1.var, e1.value) in reliable_cons
 
     # -- contexts (Algorithm 3) -----------------------------------------------------------------
     def _candidates(self, dbn: DBN) -> list[int]:
         """Valid context variables (App. D.1): magnitude with ≥ 1 landmark, or nominal."""
-        out = []
-        for v in self.table:
-            if v.index in (dbn.antecedent.var, dbn.consequent.var):
-                continue
-            if v.kind is Kind.NOMINAL or (
-                    v.kind is Kind.MAGNITUDE and self.perception.spaces[v.index].landmarks):
-                out.append(v.index)
-        return out
+        key = (id(self.perception), self.perception.landmarks_version)
+        cached = getattr(self, "_candidate_vars", None)
+        if cached is None or cached[0] != key:
+            base = [v.index for v in self.table if v.kind is Kind.NOMINAL or (
+                v.kind is Kind.MAGNITUDE and self.perception.spaces[v.index].landmarks)]
+            cached = self._candidate_vars = (key, base)
+        return [v for v in cached[1] if v not in (dbn.antecedent.var, dbn.consequent.var)]
 
     def evaluator(self, dbn: DBN, extra: tuple[int, QuantitySpace] | None = None,
                   rows: np.ndarray | None = None):
@@ -463,7 +470,7 @@ class ModelLearner:
             key = (dbn.total, dbn.context, version, tuple(cands))
             if getattr(dbn, "_context_unchanged", None) == key:
                 continue
-            acts = _StoredActivations(self, dbn)
+            acts = _StoredActivations(self, dbn, (*cands, *dbn.context))
             new = update_context(dbn.context, cands, acts.evaluate, self.params, acts.choose)
             if new is not None:
                 self._do(("set_context", dbn_id, list(new)))
@@ -556,8 +563,11 @@ class ModelLearner:
             if dbn.kind != CHANGE or dbn.act_n < p.min_data_points:
                 continue
             X, ok = dbn.stored()
-            Q = self.perception.quantize(X)
-            cq = Q[:, dbn.context[0]] if len(dbn.context) == 1 else None  # §4.4.1 footnote 2
+            Q = np.full(X.shape, -1, dtype=np.int64)              # only the columns used
+            Q[:, cols] = self.perception.quantize_columns(X, cols)
+            cq = None
+            if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
+                cq = self.perception.quantize_columns(X, dbn.context)[:, 0]
             # Blocks whose gain bound cannot pass eq. 4.17 are skipped: best_cut there could
             # only give a cut that is_candidate rejects.
             bound, labels = cut_gain_bounds(X[:, cols], ok, Q[:, cols], n_values, cq)

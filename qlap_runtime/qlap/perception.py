@@ -121,6 +121,8 @@ class Perception:
         self._nominal_size = np.array([len(v.values) for v in table if v.kind is Kind.NOMINAL])
         self._ordered_idx = np.array([v.index for v in table if v.kind is not Kind.NOMINAL],
                                      dtype=int)
+        self._ordered_pos = np.full(n, -1, dtype=np.int64)
+        self._ordered_pos[self._ordered_idx] = np.arange(len(self._ordered_idx))
         self._change_and_nominal = np.array(
             [v.index for v in table if v.kind in (Kind.CHANGE, Kind.NOMINAL)], dtype=int)
         self._all_seen = False
@@ -212,6 +214,32 @@ class Perception:
             xn = X[:, self._nominal_idx]
             Q[:, self._nominal_idx] = np.where(np.isnan(xn), -1, np.nan_to_num(xn, nan=-1))
         return Q[0] if single else Q
+
+    def quantize_columns(self, X: np.ndarray, cols) -> np.ndarray:
+        """Qualitative values of the columns ``cols`` of a matrix of real vectors (rows = steps),
+        as :meth:`quantize_var` gives them column by column; shape (rows, len(cols))."""
+        X = np.asarray(X, dtype=float)
+        cols = np.asarray(cols, dtype=np.int64)
+        out = np.empty((X.shape[0], len(cols)), dtype=np.int64)
+        if not len(cols):
+            return out
+        pos = self._ordered_pos[cols]
+        ordered = pos >= 0
+        if ordered.any():
+            ro = pos[ordered]
+            xo = X[:, cols[ordered]]
+            nl = self._nlm[ro]
+            ub = self._ub[ro]
+            j = np.zeros(xo.shape, dtype=np.int64)
+            for c in range(int(nl.max())):          # j = #{ub < x} (inf padding never counts)
+                j += ub[:, c] < xo
+            lbj = self._lb[ro[None, :], np.minimum(j, self._maxl - 1)]
+            at = (j < nl) & (xo >= lbj)
+            out[:, ordered] = np.where(np.isnan(xo), -1, 2 * j + at)
+        if not ordered.all():
+            xn = X[:, cols[~ordered]]
+            out[:, ~ordered] = np.where(np.isnan(xn), -1, np.nan_to_num(xn, nan=-1))
+        return out
 
     def quantize_var(self, var: int, x: np.ndarray) -> np.ndarray:
         """Qualitative values of one variable's real values (nominal: the index itself)."""
