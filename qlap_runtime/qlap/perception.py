@@ -321,8 +321,8 @@ class Perception:
                     continue
                 raise InvalidObservation(
                     f"variable {v.name!r} has non-finite value {x[i]!r} at step {step}")
-        if len(self._nominal_idx) and not np.array_equal(x[self._nominal_idx],
-                                                         self.prev_x[self._nominal_idx]):
+        if len(self._nominal_idx) and not (x[self._nominal_idx]
+                                           == self.prev_x[self._nominal_idx]).all():
             vals = x[self._nominal_idx]
             ok = np.isnan(vals) | ((vals == np.floor(vals)) & (vals >= 0)
                                    & (vals < self._nominal_size))
