@@ -266,11 +266,12 @@ class ModelLearner:
         return cell
 
     def _value_of(self, var: int, value: float) -> int:
-        if np.isnan(value):
+        value = float(value)
+        if value != value:                                  # NaN
             return -1
         if self.table[var].kind is Kind.NOMINAL:
             return int(value)
-        return self.perception.spaces[var].value_of(float(value))
+        return self.perception.spaces[var].value_of(value)
 
     def _size(self, var: int) -> int:
         return self.perception.events.sizes[var]
@@ -558,6 +559,13 @@ class ModelLearner:
         for i, v in enumerate(real_vars):
             pr = self._prob_interval(v.index, spaces[v.index])
             prob[i, :len(pr)] = pr
+        # A gain is at most 1 bit, so eq. 4.17 needs Pr(v = q) > θ_IG / 2: only variables with
+        # such an open interval are searched.
+        open_prob = prob.copy()
+        open_prob[:, 1::2] = 0.0
+        useful = (open_prob > p.theta_ig / 2 - _TOL).any(axis=1)
+        real_vars = [v for v, u in zip(real_vars, useful.tolist(), strict=True) if u]
+        cols, prob = cols[useful], prob[useful]
         for dbn_id in sorted(self.dbns):
             dbn = self.dbns[dbn_id]
             if dbn.kind != CHANGE or dbn.act_n < p.min_data_points:
