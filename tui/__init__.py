@@ -13,14 +13,16 @@ from collections.abc import Sequence
 from typing import Any
 
 from .app import BusFeed, QlapApp
-from .driver import LocalDriver
+from .driver import DriverProcess, LocalDriver
 
-__all__ = ["BusFeed", "LocalDriver", "QlapApp", "attach", "run_local"]
+__all__ = ["BusFeed", "DriverProcess", "LocalDriver", "QlapApp", "attach", "run_local",
+           "run_process"]
 
 
 def run_local(driver: LocalDriver) -> LocalDriver:
-    """Start ``driver`` (if not started), run the UI in this terminal until the user quits,
-    then stop the driver and close its session. Returns the driver (its agent is still there)."""
+    """Start ``driver`` (if not started) in a thread of this process, run the UI until the user
+    quits, then stop the driver and close its session. Simple, but the UI shares the GIL with
+    the agent (about 4x slower, docs/tui.md): prefer :func:`run_process`."""
     if not driver.alive:
         driver.start()
     try:
@@ -28,6 +30,18 @@ def run_local(driver: LocalDriver) -> LocalDriver:
     finally:
         driver.stop()
     return driver
+
+
+def run_process(proc: DriverProcess) -> DriverProcess:
+    """``qlap run`` in a terminal: the agent in its own process (:class:`DriverProcess`), the
+    UI here connected to it on loopback; quitting the UI stops the agent."""
+    if proc.exitcode is None and not proc.alive:
+        proc.start()
+    try:
+        QlapApp(connect=proc.endpoint, run_id=proc.run_id).run()
+    finally:
+        proc.stop()
+    return proc
 
 
 def attach(connect: Sequence[str] | str, run_id: str | None = None, **client: Any) -> None:

@@ -32,25 +32,17 @@ def main(argv: list[str] | None = None) -> int:
 
         attach(args.endpoint, args.run)
         return 0
-    import worlds
-    from qlap_runtime.qlap import Params
+    from . import DriverProcess, run_process
 
-    from . import LocalDriver, run_local
-
-    params = Params()
+    params: dict = {}
     if args.fast:
-        params = params.replace(babble_steps=2000, dbn_period=500, landmark_period=1000)
+        params.update(babble_steps=2000, dbn_period=500, landmark_period=1000)
     if args.babble_steps is not None:
-        params = params.replace(babble_steps=args.babble_steps)
-    driver = LocalDriver(worlds.make(args.world), params=params, seed=args.seed,
-                         steps=args.steps, listen=args.listen, run_id=args.run,
-                         checkpoint_dir=args.checkpoints)
-    run_local(driver)
-    if driver.error is not None:
-        print(f"agent stopped: {driver.error!r}", file=sys.stderr)
-        return 1
-    return 0
-
+        params["babble_steps"] = args.babble_steps
+    proc = DriverProcess(args.world, params=params, seed=args.seed, steps=args.steps,
+                         listen=args.listen, run_id=args.run, checkpoint_dir=args.checkpoints)
+    run_process(proc)
+    return 0 if proc.exitcode in (0, None) else 1
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 import zenoh
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
+from textual.containers import Container, Vertical
 from textual.widgets import Footer, Header
 
 from qlap_runtime.bus import keys
@@ -135,7 +136,7 @@ class QlapApp(App):
 
     TITLE = "QLAP"
     CSS = """
-    Screen { layout: grid; grid-size: 6 3; grid-rows: 2fr 1fr 1fr; }
+    #main { layout: grid; grid-size: 6 3; grid-rows: 2fr 1fr 1fr; }
     #actions { column-span: 3; }
     #plans { column-span: 3; }
     #iac, #middle, #world, #counters, #runtime { column-span: 2; }
@@ -186,17 +187,16 @@ class QlapApp(App):
     # ----------------------------------------------------------------------------- layout
     def compose(self) -> ComposeResult:
         yield Header(show_clock=False)
-        yield ActionsPanel(id="actions")
-        yield PlansPanel(id="plans")
-        yield IACPanel(id="iac")
-        from textual.containers import Vertical
-
-        with Vertical(id="middle"):
-            yield CallListPanel(id="calllist")
-            yield LandmarksPanel(id="landmarks")
-        yield WorldPanel(id="world")
-        yield CountersPanel(id="counters")
-        yield RuntimePanel(id="runtime")
+        with Container(id="main"):
+            yield ActionsPanel(id="actions")
+            yield PlansPanel(id="plans")
+            yield IACPanel(id="iac")
+            with Vertical(id="middle"):
+                yield CallListPanel(id="calllist")
+                yield LandmarksPanel(id="landmarks")
+            yield WorldPanel(id="world")
+            yield CountersPanel(id="counters")
+            yield RuntimePanel(id="runtime")
         yield Footer()
 
     def on_mount(self) -> None:

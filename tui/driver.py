@@ -341,3 +341,114 @@ class LocalDriver:
         if cad.knowledge_due(now, agent.step_count, sig) or (force and sig != cad.last_signature):
             cad.last_signature = sig
             pubs["knowledge"].put(telemetry.knowledge_msg(agent))
+
+
+# --------------------------------------------------------------------------------- process
+def _free_loopback_endpoint() -> str:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def _child_main(spec: dict[str, Any], ready: Any = None) -> None:
+    """Entry point of the agent process (spawn): a LocalDriver listening on loopback."""
+    import worlds
+    from qlap_runtime.qlap import Params
+
+    params = Params().replace(**spec.pop("params")) if spec.get("params") else None
+    out = spec.pop("out", None)
+    world = worlds.make(spec.pop("world"))
+
+    def finish(d: LocalDriver) -> None:
+        if out is None:
+            return
+        from qlap_runtime.agent_run import summary_of
+        from qlap_runtime.qlap.checkpoint import atomic_write_json, save_agent
+
+        wall = time.perf_counter() - d._started
+        atomic_write_json(Path(out) / "knowledge.json", d.agent.knowledge())
+        atomic_write_json(Path(out) / "summary.json",
+                          summary_of(d.agent, d.world, d.seed, d.steps_done, wall, []))
+        save_agent(d.agent, Path(out) / "checkpoints" / "final")
+
+    d = LocalDriver(world, params=params, on_finish=finish, **spec)
+    d.start()
+    if ready is not None:
+        ready.set()                      # listening: viewers may connect
+    try:
+        d.wait()
+    finally:
+        d.stop()
+
+
+class DriverProcess:
+    """A :class:`LocalDriver` in its own process (spawn), listening on a loopback endpoint, so
+    that the UI (another process's GIL) never slows the agent. Viewers connect to
+    :attr:`endpoint` (``client_config(endpoint)``); ``quit`` on the control topic, or
+    :meth:`stop`, ends it.
+
+    ``params`` is a dict of :class:`~qlap_runtime.qlap.Params` overrides (picklable); the other
+    keyword arguments go to :class:`LocalDriver` (``seed``, ``steps``, ``speed``, ``paused``,
+    ``checkpoint_dir``); ``out`` writes knowledge.json, summary.json and a final checkpoint
+    when the last step is done.
+    """
+
+    def __init__(self, world: str, *, run_id: str | None = None,
+                 listen: Sequence[str] = (), params: dict[str, Any] | None = None,
+                 out: Path | str | None = None, **driver: Any) -> None:
+        import multiprocessing as mp
+
+        self.run_id = keys.validate_run_id(run_id) if run_id else keys.new_run_id()
+        self.endpoint = _free_loopback_endpoint()
+        spec = dict(driver, world=world, run_id=self.run_id,
+                    listen=[self.endpoint, *listen], params=params or {},
+                    out=str(out) if out else None)
+        if "checkpoint_dir" in spec:
+            spec["checkpoint_dir"] = str(spec["checkpoint_dir"])
+        ctx = mp.get_context("spawn")
+        self._ready = ctx.Event()
+        self._process = ctx.Process(target=_child_main, args=(spec, self._ready),
+                                    name=f"qlap-agent-{self.run_id}", daemon=True)
+
+    def start(self, timeout: float = 60.0) -> DriverProcess:
+        """Start the process and wait until it listens (RuntimeError if it dies first)."""
+        self._process.start()
+        deadline = time.monotonic() + timeout
+        while not self._ready.wait(0.1):
+            if not self._process.is_alive() or time.monotonic() > deadline:
+                self.stop()
+                raise RuntimeError(f"the agent process did not start (exit code "
+                                   f"{self._process.exitcode})")
+        return self
+
+    @property
+    def alive(self) -> bool:
+        return self._process.is_alive()
+
+    @property
+    def exitcode(self) -> int | None:
+        return self._process.exitcode
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Ask the agent to quit over the bus, then wait; terminate it if it does not end."""
+        if self._process.pid is None:
+            return
+        if self._process.is_alive():
+            try:
+                with zenoh.open(_client(self.endpoint)) as s:
+                    s.put(keys.key(self.run_id, "control"),
+                          b'{"command":"quit","args":{},"version":1}')
+            except zenoh.ZError:
+                pass
+            self._process.join(timeout)
+        if self._process.is_alive():  # pragma: no cover - a stuck agent
+            self._process.terminate()
+            self._process.join(5)
+
+
+def _client(endpoint: str) -> zenoh.Config:
+    from qlap_runtime.bus.config import client_config
+
+    return client_config([endpoint])

@@ -39,6 +39,9 @@ def test_actions_appear_and_selecting_one_shows_its_plans(driver):
         async with app.run_test(size=SIZE) as pilot:
             await until(pilot, lambda: app.knowledge is not None and any(
                 a.plans for a in app.knowledge.actions))
+            await pilot.press("p")                       # a still table: rows stop moving
+            await until(pilot, lambda: app.status.paused)
+            await pilot.pause(0.4)
             panel = app.query_one(ActionsPanel)
             await until(pilot, lambda: panel.table.row_count > 0)
             with_plans = [a.label for a in app.knowledge.actions if a.plans]
@@ -55,6 +58,8 @@ def test_actions_appear_and_selecting_one_shows_its_plans(driver):
             before = panel.sort_by
             await pilot.press("o")
             assert panel.sort_by != before
+            await pilot.press("p")
+            await until(pilot, lambda: not app.status.paused)
     asyncio.run(main())
 
 

@@ -45,6 +45,8 @@ class ActionsPanel(Vertical):
         self.practised = ""
         self.sort_by = "rel"
         self.sort_reverse = True
+        self._shown: dict[str, dict[str, str]] = {}
+        self._order: list[str] = []
 
     def compose(self) -> ComposeResult:
         table: DataTable = DataTable(cursor_type="row", zebra_stripes=True, id="actions-table")
@@ -89,7 +91,9 @@ class ActionsPanel(Vertical):
             old, self.practised = self.practised, label
             for lbl in (old, label):
                 if lbl in self.actions:
-                    self.table.update_cell(lbl, "action", self._cells(self.actions[lbl])["action"])
+                    cell = self._cells(self.actions[lbl])["action"]
+                    self.table.update_cell(lbl, "action", cell)
+                    self._shown.setdefault(lbl, {})["action"] = str(cell)
 
     def _refresh_rows(self) -> None:
         table = self.table
@@ -97,13 +101,18 @@ class ActionsPanel(Vertical):
         existing = {str(k.value) for k in table.rows}
         for gone in existing - set(self.actions):
             table.remove_row(gone)
+            self._shown.pop(gone, None)
         for label, a in self.actions.items():
             cells = self._cells(a)
+            plain = {c: str(v) for c, v in cells.items()}
             if label in existing:
-                for col, value in cells.items():
-                    table.update_cell(label, col, value)
+                old = self._shown.get(label, {})
+                for col, value in cells.items():      # only what changed: a cheap refresh
+                    if old.get(col) != plain[col]:
+                        table.update_cell(label, col, value)
             else:
                 table.add_row(*cells.values(), key=label)
+            self._shown[label] = plain
         self._sort()
         if selected in self.actions:
             table.move_cursor(row=table.get_row_index(selected), animate=False)
@@ -113,6 +122,9 @@ class ActionsPanel(Vertical):
         if self.table.row_count:
             keys = sorted(self.actions, key=lambda lbl: (self._sort_value(lbl), lbl),
                           reverse=self.sort_reverse)
+            if keys == self._order and self.table.row_count == len(keys):
+                return
+            self._order = keys
             order = {k: i for i, k in enumerate(keys)}
             self.table.sort("action", key=lambda cell: order.get(cell.plain.strip("▶ "), 0))
 

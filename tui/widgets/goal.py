@@ -18,6 +18,7 @@ cancelled."""
 class GoalScreen(ModalScreen[GoalChoice | bool]):
     """A modal with two selects; dismisses with (var, value), None (clear) or False (cancel)."""
 
+    SCOPED_CSS = False  # the rules below name the screen itself
     DEFAULT_CSS = """
     GoalScreen { align: center middle; }
     GoalScreen > Vertical { width: 64; height: auto; border: thick $accent; padding: 1 2;

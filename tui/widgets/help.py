@@ -42,6 +42,7 @@ Press escape or ? to close."""
 class HelpScreen(ModalScreen[None]):
     """Keys and panels."""
 
+    SCOPED_CSS = False  # the rules below name the screen itself
     DEFAULT_CSS = """
     HelpScreen { align: center middle; }
     HelpScreen > VerticalScroll { width: 96; height: 80%; border: thick $accent;
