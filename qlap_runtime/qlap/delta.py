@@ -5,6 +5,8 @@ applied at a step boundary ``apply_at`` = computed_at + L. Replaying the operati
 any copy of the learner in the same state gives the same knowledge, so a delta is all that needs
 to travel between actors. Operations are JSON-ready tuples:
 
+- ``("refresh",)`` — refresh the sticky "sufficiently reliable" flags from the CPTs (§4.2.2);
+  the first operation of every DBN batch, so every replica refreshes at the same point.
 - ``("set_k", k)`` — the window k learned (Appendix C); pair statistics restart with it.
 - ``("add_dbn", kind, [var, value, dir], [var, value, dir], [context vars])`` — a new DBN; its id
   is the learner's next id when applied.
@@ -23,7 +25,7 @@ from typing import Any
 
 Op = tuple[Any, ...]
 
-OP_NAMES = ("set_k", "add_dbn", "set_context", "delete_dbn", "add_landmark")
+OP_NAMES = ("refresh", "set_k", "add_dbn", "set_context", "delete_dbn", "add_landmark")
 
 
 @dataclass(frozen=True)

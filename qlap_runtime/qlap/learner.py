@@ -141,6 +141,10 @@ class ModelLearner:
         self.splits: list[tuple[int, int]] = []  # (var, split) of landmarks added, for consumers
         # Set by the acting side (ch. 5–6); empty while only the learner runs.
         self.reliable_actions: set[tuple[int, int]] = set()
+        # The actor runtime drives batches itself (auto_batches False); the executor's copy
+        # is a follower: it keeps the DBN statistics but not the pair statistics of DBN search.
+        self.auto_batches = True
+        self.follower = False
         self._expiry: deque[tuple[int, DBN, list]] = deque()
         self._mag_active: dict[int, list[DBN]] = {}
         self._reindex()
@@ -160,17 +164,31 @@ class ModelLearner:
         """:meth:`observe` with the real values already ordered by variable index."""
         return self._observe(step, np.array(x, dtype=float))
 
-    def _observe(self, step: int, x: np.ndarray) -> Percept:
-        if step <= self.step:
-            raise ValueError(f"steps must increase: got {step} after {self.step}")
-        p = self.perception.perceive(step, x, copy=False)
-        self.step = step
-        self.pairs.update(step, p.event_ids)
-        if not self.k_learned:
-            self._update_window(p)
+    def observe_percept(self, p: Percept) -> Percept:
+        """Learn from a percept computed elsewhere (the perception actor) with the same
+        landmarks: Algorithm 2 lines 4–5 only; batches are the caller's business (the actor
+        runtime computes them with :meth:`compute_parts` and applies their deltas)."""
+        if p.step <= self.step:
+            raise ValueError(f"steps must increase: got {p.step} after {self.step}")
+        return self._learn_step(self.perception.ingest(p))
+
+    def _learn_step(self, p: Percept) -> Percept:
+        self.step = p.step
+        if not self.follower:
+            self.pairs.update(p.step, p.event_ids)
+            if not self.k_learned:
+                self._update_window(p)
         if self._index_dirty:
             self._reindex()
         self._update_dbns(p)
+        return p
+
+    def _observe(self, step: int, x: np.ndarray) -> Percept:
+        if step <= self.step:
+            raise ValueError(f"steps must increase: got {step} after {self.step}")
+        p = self._learn_step(self.perception.perceive(step, x, copy=False))
+        if not self.auto_batches:
+            return p
         while self.pending_deltas and self.pending_deltas[0].apply_at <= step:
             self.apply_delta(self.pending_deltas.popleft())
         if step > 0 and step % self.params.dbn_period == 0:
@@ -306,24 +324,51 @@ class ModelLearner:
         the delta is applied at ``step + L``.
         """
         work = self if self.params.batch_lag == 0 else self._clone_for_batch()
-        ops: list[Op] = []
-        work._recording = ops
-        try:
-            work._refresh_reliability()
-            work._learn_dbns(step)
-            work._update_contexts()
-            work._delete_dbns(step)
-            if step % self.params.landmark_period == 0:
-                work._learn_event_landmarks(step)
-                work._learn_dbn_landmarks(step)
-        finally:
-            work._recording = None
+        kinds = ("dbn", "landmarks") if step % self.params.landmark_period == 0 else ("dbn",)
+        parts = work._compute_parts(step, kinds)
         self.version += 1
+        ops = tuple(op for kind in kinds for op in parts[kind].ops)
         delta = Delta(version=self.version, computed_at=step,
-                      apply_at=step + self.params.batch_lag, ops=tuple(ops))
+                      apply_at=step + self.params.batch_lag, ops=ops)
         if work is self:
             delta = delta.mark_applied()
         return delta
+
+    def batch_copy(self) -> ModelLearner:
+        """A private copy on which a batch may be computed while this learner goes on."""
+        return self._clone_for_batch()
+
+    def compute_parts(self, step: int, kinds: tuple[str, ...]) -> dict[str, Delta]:
+        """Compute a batch's parts on THIS object (call it on :meth:`batch_copy`): "dbn" is
+        Algorithm 2 lines 6–9, "landmarks" lines 10–13 computed after them. Each part is a
+        Delta (version from its step and kind) applied by every consumer at step + L."""
+        return self._compute_parts(step, kinds)
+
+    def _compute_parts(self, step: int, kinds: tuple[str, ...]) -> dict[str, Delta]:
+        from ..runtime.lockstep import delta_version
+
+        out: dict[str, Delta] = {}
+        lag = self.params.batch_lag
+        ops: list[Op] = []
+        self._recording = ops
+        try:
+            # The sticky "sufficiently reliable" flags are refreshed as the batch's first op,
+            # so that every replica refreshes at the same point (§4.2.2).
+            self._do(("refresh",))
+            self._learn_dbns(step)
+            self._update_contexts()
+            self._delete_dbns(step)
+            out["dbn"] = Delta(delta_version(step, "dbn"), step, step + lag, tuple(ops))
+            if "landmarks" in kinds:
+                ops = []
+                self._recording = ops
+                self._learn_event_landmarks(step)
+                self._learn_dbn_landmarks(step)
+                out["landmarks"] = Delta(delta_version(step, "landmarks"), step, step + lag,
+                                         tuple(ops))
+        finally:
+            self._recording = None
+        return out
 
     _recording: list[Op] | None = None
 
@@ -336,7 +381,6 @@ class ModelLearner:
     def apply_delta(self, delta: Delta) -> None:
         """Apply a batch's delta at a step boundary (idempotent for an already applied one)."""
         if not delta.applied:
-            self._refresh_reliability()
             for op in delta.ops:
                 self._apply_op(op)
         self.applied_count += 1
@@ -666,6 +710,9 @@ class ModelLearner:
     # ------------------------------------------------------------------------------------------
     def _apply_op(self, op: Op) -> None:
         kind = op[0]
+        if kind == "refresh":
+            self._refresh_reliability()
+            return
         if kind == "set_k":
             self.k = int(op[1])
             self.k_learned = True

@@ -310,6 +310,25 @@ class Perception:
         self.prev_q = q
         return Percept(step, x, q, events, ids)
 
+    def ingest(self, p: Percept) -> Percept:
+        """Record a percept computed by another perception with the same landmarks (the
+        perception actor): the side effects of :meth:`perceive` without recomputing it.
+        Returns the percept with event ids of this object's index."""
+        x = np.array(p.x, dtype=float)
+        q = np.array(p.q, dtype=np.int64)
+        off, mult = self.events.offset, self.events.mult
+        ids = np.array([off[e.var] + e.value * mult[e.var] + (1 if e.direction < 0 else 0)
+                        for e in p.events], dtype=np.int64)
+        self.steps_seen += 1
+        cap = self.hist_x.shape[0]
+        self.hist_x[self.hist_head] = x
+        self.hist_q[self.hist_head] = q
+        self.hist_head = (self.hist_head + 1) % cap
+        self.hist_len = min(self.hist_len + 1, cap)
+        self.prev_x = x
+        self.prev_q = q
+        return Percept(p.step, x, q, p.events, ids)
+
     def _validate(self, step: int, x: np.ndarray) -> bool:
         """Check one row; returns True when every world variable is present and finite."""
         world = x[self._world_idx]

@@ -1,0 +1,155 @@
+"""Placements: the same actors in one process (embedded) or one process each (processes).
+
+``embedded`` opens one Zenoh session with no sockets and runs every actor as a trio task of one
+nursery. ``processes`` opens a Zenoh router in this process on a free loopback port and starts
+each actor in its own process (``spawn``), each with a client session to the router; a
+supervisor watches them and stops the run if one dies. In both, the run is in lockstep and the
+results are those of the synchronous loop with the same seed and parameters.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import socket
+import time
+from pathlib import Path
+from typing import Any
+
+import trio
+import zenoh
+
+from ..bus.bridge import AliveWatcher
+from ..bus.config import client_config, embedded_config, router_config
+from ..qlap.checkpoint import atomic_write_json
+
+ACTORS = ("perception", "contingency", "landmarks", "executor", "world")
+"""Every actor of a run; the world starts last (it waits for the others)."""
+
+
+async def _run_actor(name: str, session: Any, ctx: Any, ready: trio.Event | None = None) -> dict:
+    from actors import executor, learning, perception, world
+
+    if name == "world":
+        return await world.run(session, ctx, ready)
+    if name == "perception":
+        return await perception.run(session, ctx)
+    if name in ("contingency", "landmarks"):
+        return await learning.run(session, ctx, name)
+    if name == "executor":
+        return await executor.run(session, ctx)
+    raise ValueError(f"unknown actor {name!r}; known: {', '.join(ACTORS)}")
+
+
+async def _wait_alive(session: Any, run_id: str, names: set[str], limit_s: float) -> None:
+    with AliveWatcher(session, run_id) as watcher, trio.fail_after(limit_s):
+        await watcher.wait_until(lambda alive: names <= alive)
+
+
+async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Every actor in this process on one socket-less session (or listening on ``listen``)."""
+    results: dict[str, Any] = {}
+    t0 = time.perf_counter()
+    with zenoh.open(embedded_config(listen)) as session:
+        ready = trio.Event()
+
+        async def one(name: str) -> None:
+            results[name] = await _run_actor(name, session, ctx, ready)
+
+        async with trio.open_nursery() as nursery:
+            for name in ACTORS:
+                nursery.start_soon(one, name)
+            await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 30)
+            ready.set()
+    return _finish(ctx, "embedded", results, time.perf_counter() - t0)
+
+
+def run_embedded(ctx: Any, listen: tuple[str, ...] = ()) -> dict[str, Any]:
+    return trio.run(run_embedded_async, ctx, listen)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) -> None:
+    """Entry point of an actor's process (spawned: no state inherited)."""
+    from actors.common import RunContext
+
+    ctx = RunContext.from_json(json.loads(ctx_json))
+
+    async def main() -> dict:
+        with zenoh.open(client_config([endpoint])) as session:
+            ready = None
+            if name == "world":
+                ready = trio.Event()
+                await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 60)
+                ready.set()
+            return await _run_actor(name, session, ctx, ready)
+
+    result = trio.run(main)
+    atomic_write_json(Path(result_path), result)
+
+
+def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05) -> dict[str, Any]:
+    """One process per actor around a router opened here (DESIGN.md §4, processes)."""
+    import tempfile
+
+    port = listen_port or free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    spawn = mp.get_context("spawn")
+    t0 = time.perf_counter()
+    results: dict[str, Any] = {}
+    with zenoh.open(router_config([endpoint])), tempfile.TemporaryDirectory() as tmp:
+        procs = {}
+        for name in ACTORS:
+            path = str(Path(tmp) / f"{name}.json")
+            p = spawn.Process(target=_actor_process, name=f"qlap-{name}",
+                              args=(name, json.dumps(ctx.to_json()), endpoint, path))
+            p.start()
+            procs[name] = (p, path)
+        failed = None
+        try:
+            while any(p.is_alive() for p, _ in procs.values()):
+                for name, (p, _) in procs.items():
+                    if not p.is_alive() and p.exitcode not in (0, None):
+                        failed = (name, p.exitcode)
+                if failed:
+                    break
+                time.sleep(poll)
+        finally:
+            for p, _ in procs.values():
+                if p.is_alive():
+                    p.terminate()
+                p.join(10)
+        if failed:
+            raise RuntimeError(f"actor {failed[0]} exited with code {failed[1]}; run stopped")
+        for name, (p, path) in procs.items():
+            if p.exitcode != 0:
+                raise RuntimeError(f"actor {name} exited with code {p.exitcode}")
+            results[name] = json.loads(Path(path).read_text())
+    return _finish(ctx, "processes", results, time.perf_counter() - t0)
+
+
+def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float) -> dict[str, Any]:
+    summary: dict[str, Any] = {"placement": placement, "clock": "lockstep",
+                               "world": ctx.world, "seed": ctx.seed, "steps": ctx.steps,
+                               "wall_time_s": round(wall, 3),
+                               "steps_per_s": round(ctx.steps / wall, 1) if wall else None,
+                               "actors": results,
+                               "waits": sum(r.get("waits", 0) for r in results.values()),
+                               "rejected_messages": sum(r.get("rejected", 0)
+                                                        for r in results.values()),
+                               "restarts": 0}
+    if ctx.out is not None:
+        out = Path(ctx.out)
+        executor = out / "actors" / "executor.json"
+        if executor.exists():
+            base = json.loads(executor.read_text())
+            base.update({k: v for k, v in summary.items() if k != "actors"})
+            base["actor_stats"] = results
+            summary = base
+        atomic_write_json(out / "summary.json", summary)
+    return summary
