@@ -100,15 +100,25 @@ class DeltaInbox:
 
 def percept_from_qstate(msg: QState, table: VariableTable) -> Percept:
     """Rebuild the perception actor's :class:`Percept` from its message."""
+    index = _name_index(table)
     n = len(table)
     x = np.full(n, np.nan)
     q = np.full(n, -1, dtype=np.int64)
-    for name, value in msg.x.items():
-        x[table.index(name)] = value
-    for name, value in msg.values.items():
-        q[table.index(name)] = value
-    events = tuple(Event(table.index(name), int(v), int(d)) for name, v, d in msg.events)
+    if msg.x:
+        x[[index[k] for k in msg.x]] = list(msg.x.values())
+    if msg.values:
+        q[[index[k] for k in msg.values]] = list(msg.values.values())
+    events = tuple(Event(index[name], int(v), int(d)) for name, v, d in msg.events)
     return Percept(msg.step, x, q, events, np.zeros(0, dtype=np.int64))
+
+
+def _name_index(table: VariableTable) -> dict[str, int]:
+    """name -> index of a table (kept on the table; an unknown name raises KeyError)."""
+    index = getattr(table, "_name_index", None)
+    if index is None:
+        index = {v.name: v.index for v in table}
+        table._name_index = index  # type: ignore[attr-defined]
+    return index
 
 
 def qstate_of(p: Percept, table: VariableTable) -> QState:

@@ -40,7 +40,22 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path, default=None,
                      help="output directory for checkpoints, knowledge.json, summary.json")
     run.add_argument("--headless", action="store_true",
-                     help="no interactive UI (the only mode until the TUI exists)")
+                     help="no terminal UI: a progress bar and a final summary (the default "
+                          "when stdout is not a terminal)")
+    run.add_argument("--placement", choices=("sync", "embedded", "processes"), default="sync",
+                     help="sync: the synchronous reference loop (Algorithm 2) in this process "
+                          "(default, fastest); embedded: the actors on one socket-less Zenoh "
+                          "session; processes: one process per actor around a router "
+                          "(docs/runtime.md). The results are identical")
+    run.add_argument("--clock", choices=("lockstep",), default="lockstep",
+                     help="lockstep: the world waits for the executor (realtime: not yet)")
+    run.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                     help="also listen on ENDPOINT (e.g. tcp/127.0.0.1:7447) so outside "
+                          "subscribers (qlap tui/record/echo --connect) can attach "
+                          "(embedded placement and the terminal UI)")
+    run.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
+                     help="record every bus message of the run to an MCAP file "
+                          "(embedded placement)")
     run.add_argument("--lag", type=int, default=0,
                      help="batch lag L in steps (DESIGN.md §4; 0 = Algorithm 2)")
     run.add_argument("--babble-steps", type=int, default=None,
@@ -82,6 +97,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_bus_commands(sub)
 
+    tui_p = sub.add_parser("tui", help="attach the terminal UI to a running agent",
+                           description="Open the Textual UI on a run reachable through a Zenoh "
+                                       "endpoint (qlap run --listen, or a router).")
+    tui_p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT",
+                       help="endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    tui_p.add_argument("--run", default=None, help="run id (default: the first one heard)")
+
     worlds_p = sub.add_parser("worlds", help="list the registered worlds")
     worlds_p.add_argument("--json", action="store_true")
     return p
@@ -92,6 +114,18 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "run":
             return _cmd_run(args)
+        if args.command == "tui":
+            import zenoh
+
+            from tui import attach
+
+            try:
+                attach(args.connect, args.run)
+            except zenoh.ZError as exc:
+                print(f"qlap tui: cannot connect to {', '.join(args.connect)}: {exc}",
+                      file=sys.stderr)
+                return 1
+            return 0
         if args.command == "show":
             return _cmd_show(args)
         if args.command == "eval":
@@ -145,6 +179,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"qlap run: {exc}", file=sys.stderr)
         return 2
+    interactive = sys.stdout.isatty() and not args.headless
+    if interactive and args.placement == "sync" and args.resume is None:
+        return _run_tui(args)
+    if args.placement != "sync":
+        return _run_actors(args, world, params)
     agent = None
     if args.resume is not None:
         try:
@@ -198,6 +237,57 @@ def _cmd_run(args: argparse.Namespace) -> int:
               f"(first: {summary['rejected_examples'][0]})")
     print(format_knowledge(agent.knowledge(), limit=25))
     if args.out is not None:
+        print(f"\nwrote {args.out}/knowledge.json, summary.json, checkpoints/")
+    return 0
+
+
+def _run_tui(args: argparse.Namespace) -> int:
+    """``qlap run`` in a terminal: the agent in its own process, the UI here (docs/tui.md)."""
+    from tui import DriverProcess, run_process
+
+    overrides: dict = {}
+    if args.babble_steps is not None:
+        overrides["babble_steps"] = args.babble_steps
+    if args.lag:
+        overrides["batch_lag"] = args.lag
+    proc = DriverProcess(args.world, params=overrides, seed=args.seed, steps=args.steps,
+                         out=args.out, listen=args.listen,
+                         checkpoint_dir=(args.out / "checkpoints") if args.out
+                         else Path("qlap-checkpoints"))
+    run_process(proc)
+    return 0 if proc.exitcode in (0, None) else 1
+
+
+def _run_actors(args: argparse.Namespace, world, params) -> int:
+    """``qlap run --placement embedded|processes``: the actor runtime in lockstep."""
+    from actors.common import RunContext
+
+    from .agent_run import params_for_world
+    from .bus import keys
+    from .runtime.launcher import run_embedded, run_processes
+
+    params = params_for_world(world, params)
+    world.close()
+    if args.resume is not None:
+        print("qlap run: --resume is supported with --placement sync only", file=sys.stderr)
+        return 2
+    if args.placement == "processes" and (args.record or args.listen):
+        print("qlap run: --record/--listen go with --placement embedded; with processes, "
+              "attach `qlap record --connect` to the router", file=sys.stderr)
+        return 2
+    ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=args.out)
+    print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
+          f"{args.placement}, lockstep, lag {params.batch_lag}", file=sys.stderr)
+    if args.placement == "embedded":
+        summary = run_embedded(ctx, tuple(args.listen), record=args.record)
+    else:
+        summary = run_processes(ctx)
+    print(f"{summary['steps']} steps in {summary['wall_time_s']} s "
+          f"({summary['steps_per_s']} steps/s); waits {summary['waits']}, rejected messages "
+          f"{summary['rejected_messages']}")
+    if args.out is not None:
+        knowledge = json.loads((args.out / "knowledge.json").read_text())
+        print(format_knowledge(knowledge, limit=25))
         print(f"\nwrote {args.out}/knowledge.json, summary.json, checkpoints/")
     return 0
 

@@ -46,26 +46,36 @@ async def _wait_alive(session: Any, run_id: str, names: set[str], limit_s: float
         await watcher.wait_until(lambda alive: names <= alive)
 
 
-async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = ()) -> dict[str, Any]:
-    """Every actor in this process on one socket-less session (or listening on ``listen``)."""
+async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
+                             record: Path | None = None) -> dict[str, Any]:
+    """Every actor in this process on one socket-less session (or listening on ``listen``);
+    with ``record``, the recorder actor writes every message of the run to an MCAP file."""
+    from ..bus.recorder import record as record_bus
+
     results: dict[str, Any] = {}
     t0 = time.perf_counter()
     with zenoh.open(embedded_config(listen)) as session:
         ready = trio.Event()
+        stop = trio.Event()
 
         async def one(name: str) -> None:
             results[name] = await _run_actor(name, session, ctx, ready)
 
-        async with trio.open_nursery() as nursery:
-            for name in ACTORS:
-                nursery.start_soon(one, name)
-            await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 30)
-            ready.set()
+        async with trio.open_nursery() as outer:
+            if record is not None:
+                await outer.start(record_bus, session, ctx.run_id, record, stop)
+            async with trio.open_nursery() as nursery:
+                for name in ACTORS:
+                    nursery.start_soon(one, name)
+                await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 30)
+                ready.set()
+            stop.set()
     return _finish(ctx, "embedded", results, time.perf_counter() - t0)
 
 
-def run_embedded(ctx: Any, listen: tuple[str, ...] = ()) -> dict[str, Any]:
-    return trio.run(run_embedded_async, ctx, listen)
+def run_embedded(ctx: Any, listen: tuple[str, ...] = (), record: Path | None = None
+                 ) -> dict[str, Any]:
+    return trio.run(run_embedded_async, ctx, listen, record)
 
 
 def free_port() -> int:
