@@ -56,7 +56,8 @@ class LocalDriver:
         run_id: the run's id (a fresh one by default).
         speed: steps/s limit (0 = as fast as possible); paused: start paused.
         checkpoint_dir: where ``save`` writes (``<dir>/step-NNNNNNN``).
-        on_finish: called in the worker thread with the driver when the last step is done
+        on_finish: called in the worker thread with the driver when the last step is done,
+            or when the run is quit before that
             (e.g. to write ``knowledge.json``).
     """
 
@@ -296,6 +297,8 @@ class LocalDriver:
             self._publish(now)
             if self.speed > 0 and not self.paused:
                 self._pace(now)
+        if not self.finished and self.steps_done and self.on_finish is not None:
+            self.on_finish(self)           # quit early: the outputs still describe the run
 
     def _pace(self, now: float) -> None:
         """Realtime clock: tick n starts at t0 + n / speed; count late and missed ticks."""
