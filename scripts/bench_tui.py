@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from qlap_runtime.qlap import Params  # noqa: E402
+from qlap_runtime.qlap import Params
 
 FAST = Params(babble_steps=2000, dbn_period=500, landmark_period=1000)
 
