@@ -64,6 +64,7 @@ class Plan:
         self.actions: list[MDPAction] = []
         self.spec: PlanSpec | None = None
         self._magnitudes = frozenset(v.index for v in table if v.kind is Kind.MAGNITUDE)
+        self._nominals = frozenset(v.index for v in table if v.kind is Kind.NOMINAL)
         self._dot_of = {v.source: v.index for v in table if v.kind is Kind.CHANGE}
 
     # -- structure ------------------------------------------------------------------------------
@@ -106,6 +107,10 @@ class Plan:
                 now = vals[:, space.position(a.var)]
                 need = np.where(now < a.value, 2, 0)
                 regress[:, j] = (now != a.value) & (need == gval)
+            elif (a.var in self._nominals and a.var in space
+                  and a.var != self.spec.antecedent.var):
+                # Appendix A item 1: actions on nominal variables already achieved in s.
+                regress[:, j] = vals[:, space.position(a.var)] == a.value
         rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
         return TransitionModel.build(space, self.actions, self.spec, rel_a, rel_model(space),
                                      regress)
