@@ -47,9 +47,10 @@ async def _wait_alive(session: Any, run_id: str, names: set[str], limit_s: float
 
 
 async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
-                             record: Path | None = None) -> dict[str, Any]:
+                             record: Path | None = None, extra: tuple = ()) -> dict[str, Any]:
     """Every actor in this process on one socket-less session (or listening on ``listen``);
-    with ``record``, the recorder actor writes every message of the run to an MCAP file."""
+    with ``record``, the recorder actor writes every message of the run to an MCAP file;
+    ``extra`` coroutines ``task(session, ctx)`` run beside the actors (tests, tools)."""
     from ..bus.recorder import record as record_bus
 
     results: dict[str, Any] = {}
@@ -69,6 +70,8 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
                     nursery.start_soon(one, name)
                 await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 30)
                 ready.set()
+                for task in extra:                 # e.g. a test's fuzzer on the same session
+                    nursery.start_soon(task, session, ctx)
             stop.set()
     return _finish(ctx, "embedded", results, time.perf_counter() - t0)
 
