@@ -78,7 +78,15 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
 
 def run_embedded(ctx: Any, listen: tuple[str, ...] = (), record: Path | None = None
                  ) -> dict[str, Any]:
-    return trio.run(run_embedded_async, ctx, listen, record)
+    """:func:`run_embedded_async` under trio; Ctrl-C cancels every actor at its next
+    checkpoint (sessions closed) and surfaces as a plain KeyboardInterrupt."""
+    try:
+        return trio.run(run_embedded_async, ctx, listen, record,
+                        restrict_keyboard_interrupt_to_checkpoints=True)
+    except BaseExceptionGroup as group:
+        if group.subgroup(KeyboardInterrupt) is not None:
+            raise KeyboardInterrupt from None
+        raise
 
 
 def free_port() -> int:
@@ -88,26 +96,68 @@ def free_port() -> int:
 
 
 def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) -> None:
-    """Entry point of an actor's process (spawned: no state inherited)."""
+    """Entry point of an actor's process (spawned: no state inherited).
+
+    Ctrl-C is the launcher's business (it stops every actor): SIGINT is ignored here; SIGTERM,
+    or the launcher's death, cancels the actor, whose session is then closed.
+    """
+    import os
+    import signal
+
     from actors.common import RunContext
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     ctx = RunContext.from_json(json.loads(ctx_json))
+    parent = os.getppid()
 
-    async def main() -> dict:
+    async def watch(cancel: trio.CancelScope) -> None:
+        with trio.open_signal_receiver(signal.SIGTERM) as signals:
+            while os.getppid() == parent:
+                with trio.move_on_after(0.5):
+                    async for _ in signals:
+                        cancel.cancel()
+                        return
+        cancel.cancel()                             # the launcher died: stop, close the session
+
+    async def main() -> dict | None:
+        result = None
         with zenoh.open(client_config([endpoint])) as session:
-            ready = None
-            if name == "world":
-                ready = trio.Event()
-                await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 60)
-                ready.set()
-            return await _run_actor(name, session, ctx, ready)
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(watch, nursery.cancel_scope)
+                ready = None
+                if name == "world":
+                    ready = trio.Event()
+                    await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 60)
+                    ready.set()
+                result = await _run_actor(name, session, ctx, ready)
+                nursery.cancel_scope.cancel()
+        return result
 
     result = trio.run(main)
+    if result is None:
+        raise SystemExit(143)                       # stopped before the end of the run
     atomic_write_json(Path(result_path), result)
 
 
 def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05) -> dict[str, Any]:
-    """One process per actor around a router opened here (DESIGN.md §4, processes)."""
+    """One process per actor around a router opened here (DESIGN.md §4, processes).
+
+    Ctrl-C or SIGTERM stops every actor (SIGTERM to each, which closes its session) and
+    raises KeyboardInterrupt here once they are gone.
+    """
+    import signal
+
+    def on_term(signum, frame):                     # SIGTERM: stop the actors like Ctrl-C
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        return _run_processes(ctx, listen_port, poll)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run_processes(ctx: Any, listen_port: int | None, poll: float) -> dict[str, Any]:
     import tempfile
 
     port = listen_port or free_port()
