@@ -199,6 +199,10 @@ class QlapApp(App):
             yield RuntimePanel(id="runtime")
         yield Footer()
 
+    def _panel(self, cls):
+        """A panel of the main screen, also while a dialog (goal, help) is on top."""
+        return self.screen_stack[0].query_one(cls)
+
     def on_mount(self) -> None:
         if self._session is None:
             self._session = zenoh.open(client_config(self._connect, **self._client))
@@ -209,7 +213,7 @@ class QlapApp(App):
                                else f"{keys.ROOT}/*/{keys.ALIVE}/*")
         self._handles.append(session.liveliness().declare_subscriber(
             self._alive_pattern, self.feed.on_alive, history=True))
-        runtime = self.query_one(RuntimePanel)
+        runtime = self._panel(RuntimePanel)
         runtime.run_id = self.run_id or "?"
         runtime.connection = ("embedded session" if not self._own_session
                               else ", ".join([self._connect] if isinstance(self._connect, str)
@@ -226,48 +230,48 @@ class QlapApp(App):
         if self.run_id is None and self.feed.run_id is not None:
             self.run_id = self.feed.run_id
             self.sub_title = f"run {self.run_id}"
-            self.query_one(RuntimePanel).run_id = self.run_id
+            self._panel(RuntimePanel).run_id = self.run_id
         for actor, up in alive:
             (self.alive.add if up else self.alive.discard)(actor)
         for s in stats:
             self.stats[s.actor] = s
         if iac:
             self.iac_seen += len(iac)
-            self.query_one(IACPanel).add(iac)
+            self._panel(IACPanel).add(iac)
             last = next((c for c in reversed(iac) if not c.babbling), None)
             if last is not None and not (self.calllist and self.calllist.actions):
-                self.query_one(ActionsPanel).set_practised(last.action)
+                self._panel(ActionsPanel).set_practised(last.action)
         if "knowledge" in latest:
             self.apply_knowledge(latest["knowledge"])
         if "calllist" in latest:
             self.calllist = latest["calllist"]
-            self.query_one(CallListPanel).update_calllist(self.calllist)
+            self._panel(CallListPanel).update_calllist(self.calllist)
             if self.calllist.actions:
-                self.query_one(ActionsPanel).set_practised(self.calllist.actions[0])
+                self._panel(ActionsPanel).set_practised(self.calllist.actions[0])
         if "world" in latest:
             self.world = latest["world"]
-            self.query_one(WorldPanel).update_world(self.world)
-            self.query_one(CallListPanel).update_calllist(motor=self.world.motor)
+            self._panel(WorldPanel).update_world(self.world)
+            self._panel(CallListPanel).update_calllist(motor=self.world.motor)
         if "status" in latest:
             self.status = latest["status"]
-            self.query_one(CallListPanel).update_calllist(goal=self.status.goal)
+            self._panel(CallListPanel).update_calllist(goal=self.status.goal)
         if "status" in latest or alive or stats:
-            self.query_one(RuntimePanel).show(self.status, self.alive, self.stats)
+            self._panel(RuntimePanel).show(self.status, self.alive, self.stats)
 
     def apply_knowledge(self, k: Knowledge) -> None:
         self.knowledge = k
-        actions = self.query_one(ActionsPanel)
+        actions = self._panel(ActionsPanel)
         actions.update_knowledge(k)
-        self.query_one(IACPanel).update_knowledge(k)
-        self.query_one(LandmarksPanel).update_knowledge(k)
-        self.query_one(CountersPanel).update_knowledge(k)
+        self._panel(IACPanel).update_knowledge(k)
+        self._panel(LandmarksPanel).update_knowledge(k)
+        self._panel(CountersPanel).update_knowledge(k)
         self._show_plans(actions.selected)
 
     def _show_plans(self, label: str) -> None:
         if self.knowledge is None:
             return
         action = next((a for a in self.knowledge.actions if a.label == label), None)
-        self.query_one(PlansPanel).show(action)
+        self._panel(PlansPanel).show(action)
 
     def on_actions_panel_selected(self, event: ActionsPanel.Selected) -> None:
         self._show_plans(event.label)
@@ -315,7 +319,7 @@ class QlapApp(App):
             self.notify("no knowledge yet", severity="warning")
             return
         suggested = []
-        selected = self.query_one(ActionsPanel).selected
+        selected = self._panel(ActionsPanel).selected
         for a in self.knowledge.actions:
             if a.label == selected and a.variable in self.knowledge.values:
                 suggested.append((a.variable, a.value))
