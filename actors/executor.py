@@ -15,7 +15,7 @@ from pathlib import Path
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
-from qlap_runtime.bus.schema import CallList, Motor
+from qlap_runtime.bus.schema import Motor
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import atomic_write_json, save_agent
 
@@ -35,7 +35,7 @@ async def run(session, ctx: RunContext) -> dict:
     with declare_alive(session, ctx.run_id, NAME), \
             TrioSubscriber(session, keys.key(ctx.run_id, "qstate"), counter=counter) as sub, \
             Publisher(session, ctx.run_id, "motor") as pub, \
-            Publisher(session, ctx.run_id, "calllist") as calls_pub:
+            Display(session, ctx) as display:
         deltas = DeltaInbox(session, ctx, counter)
         try:
             inbox = StepInbox(sub)
@@ -53,8 +53,7 @@ async def run(session, ctx: RunContext) -> dict:
                     agent.learner.apply_delta(d)
                 motor = agent.decide(p)
                 pub.put(Motor(t, motor))
-                if t % 50 == 0:
-                    calls_pub.put(CallList(t, tuple(agent.call_list_labels())))
+                display.publish(agent, deltas)
                 if ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
                     save_agent(agent, Path(ctx.out) / "checkpoints" / f"step-{t + 1:07d}")
         finally:
@@ -73,3 +72,44 @@ async def run(session, ctx: RunContext) -> dict:
                              wall, rejected)
         atomic_write_json(out / "actors" / f"{NAME}.json", summary)
     return result
+
+
+class Display:
+    """The display topics the terminal UI reads (docs/tui.md), published with DROP at a bounded
+    rate: they only read the agent, so they never change what it does."""
+
+    def __init__(self, session, ctx: RunContext) -> None:
+        from qlap_runtime import telemetry
+
+        self.telemetry = telemetry
+        self.ctx = ctx
+        self.cadence = telemetry.Cadence()
+        self.t0 = time.perf_counter()
+        self.pubs = {topic: Publisher(session, ctx.run_id, topic)
+                     for topic in ("iac", "calllist", "status", "stats", "knowledge")}
+
+    def publish(self, agent: Agent, deltas: DeltaInbox) -> None:
+        tm, cad, now = self.telemetry, self.cadence, time.perf_counter()
+        if cad.display_due(now):
+            for msg in tm.iac_msgs(agent, cad.last_iac_step):
+                self.pubs["iac"].put(msg)
+                cad.last_iac_step = msg.step
+            self.pubs["calllist"].put(tm.call_list_msg(agent))
+            status = tm.status_msg(
+                agent, steps_per_s=cad.steps_per_s(now, agent.step_count), paused=False,
+                clock="lockstep", placement=self.ctx.extra.get("placement", "embedded"),
+                world=self.ctx.world, seed=self.ctx.seed, wall_s=now - self.t0)
+            self.pubs["status"].put(status)
+            if cad.stats_due(now):
+                self.pubs["stats"].put(tm.stats_msg(status, actor=NAME))
+        sig = tm.knowledge_signature(agent)
+        if cad.knowledge_due(now, agent.step_count, sig):
+            cad.last_signature = sig
+            self.pubs["knowledge"].put(tm.knowledge_msg(agent))
+
+    def __enter__(self) -> Display:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for pub in self.pubs.values():
+            pub.close()

@@ -12,7 +12,7 @@ import trio
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
-from qlap_runtime.bus.schema import Sense
+from qlap_runtime.bus.schema import Sense, WorldView
 
 from .common import RunContext, StepInbox
 
@@ -31,8 +31,10 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
         obs = world.reset(seed=ctx.seed)
         with declare_alive(session, ctx.run_id, NAME), \
                 TrioSubscriber(session, keys.key(ctx.run_id, "motor"), counter=counter) as sub, \
-                Publisher(session, ctx.run_id, "sense") as pub:
+                Publisher(session, ctx.run_id, "sense") as pub, \
+                Publisher(session, ctx.run_id, "world") as view:
             inbox = StepInbox(sub)
+            last_view = 0.0
             if ready is not None:
                 await ready.wait()
             start = ctx.extra.get("start_step", 0)
@@ -45,6 +47,12 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 stats["wait_s"] += time.perf_counter() - t0
                 applied = dict(motor.values)
                 obs = world.step(applied)
+                now = time.perf_counter()
+                if now - last_view >= 0.1:                    # the UI's world panel, 10 Hz
+                    last_view = now
+                    view.put(WorldView(t, str(getattr(world, "name", ctx.world)),
+                                       world.render_text(44, 14),
+                                       {k: float(v) for k, v in obs.items()}, applied, {}))
                 stats["steps"] += 1
     finally:
         world.close()

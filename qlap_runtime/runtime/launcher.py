@@ -54,6 +54,7 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     from ..bus.recorder import record as record_bus
 
     results: dict[str, Any] = {}
+    ctx.extra.setdefault("placement", "embedded")
     t0 = time.perf_counter()
     with zenoh.open(embedded_config(listen)) as session:
         ready = trio.Event()
@@ -161,6 +162,7 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float) -> dict[str, 
     import tempfile
 
     port = listen_port or free_port()
+    ctx.extra.setdefault("placement", "processes")
     endpoint = f"tcp/127.0.0.1:{port}"
     spawn = mp.get_context("spawn")
     t0 = time.perf_counter()
