@@ -97,6 +97,26 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_bus_commands(sub)
 
+    actor = sub.add_parser(
+        "actor", help="run one actor of a distributed run (connects to a router)",
+        description="Run one actor (world, perception, contingency, landmarks, executor) on "
+                    "this machine, connected to a Zenoh router (qlap router). Start every "
+                    "actor of the run with the same --run, --world, --steps, --seed and "
+                    "learning options; the world starts stepping when the others are alive.")
+    actor.add_argument("name", choices=("world", "perception", "contingency", "landmarks",
+                                        "executor"))
+    from .bus.cli import _connection_args
+
+    _connection_args(actor)
+    actor.add_argument("--run", required=True, help="run id shared by every actor of the run")
+    actor.add_argument("--world", default="core")
+    actor.add_argument("--steps", type=_positive, default=30_000)
+    actor.add_argument("--seed", type=int, default=0)
+    actor.add_argument("--lag", type=int, default=500, help="batch lag L (default 500)")
+    actor.add_argument("--babble-steps", type=int, default=None)
+    actor.add_argument("--out", type=Path, default=None,
+                       help="(executor) where to write knowledge.json, checkpoints")
+
     tui_p = sub.add_parser("tui", help="attach the terminal UI to a running agent",
                            description="Open the Textual UI on a run reachable through a Zenoh "
                                        "endpoint (qlap run --listen, or a router).")
@@ -114,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "run":
             return _cmd_run(args)
+        if args.command == "actor":
+            return _cmd_actor(args)
         if args.command == "tui":
             import zenoh
 
@@ -289,6 +311,47 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
         knowledge = json.loads((args.out / "knowledge.json").read_text())
         print(format_knowledge(knowledge, limit=25))
         print(f"\nwrote {args.out}/knowledge.json, summary.json, checkpoints/")
+    return 0
+
+
+def _cmd_actor(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from actors.common import RunContext
+
+    from .agent_run import params_for_world
+    from .bus import keys
+    from .bus.cli import _client
+    from .bus.config import BusConfigError
+    from .qlap import Params
+    from .runtime.launcher import run_actor
+
+    world = _make_world(args.world, "actor")
+    if world is None:
+        return 2
+    try:
+        keys.validate_run_id(args.run)
+        changes = {"batch_lag": args.lag}
+        if args.babble_steps is not None:
+            changes["babble_steps"] = args.babble_steps
+        params = params_for_world(world, Params(**changes))
+        config = _client(args)
+    except (ValueError, BusConfigError) as exc:
+        print(f"qlap actor: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        world.close()
+    ctx = RunContext(args.run, args.world, args.steps, args.seed, params, out=args.out)
+    try:
+        result = run_actor(args.name, ctx, config)
+    except zenoh.ZError as exc:
+        print(f"qlap actor: cannot connect to {', '.join(args.connect)}: {exc}",
+              file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"qlap actor {args.name}: stopped", file=sys.stderr)
+        return 130
+    print(json.dumps(result))
     return 0
 
 

@@ -218,3 +218,42 @@ def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float) -> d
             summary = base
         atomic_write_json(out / "summary.json", summary)
     return summary
+
+
+def run_actor(name: str, ctx: Any, config: zenoh.Config) -> dict[str, Any]:
+    """One actor of a distributed run, in this process, with a client session (``qlap actor``).
+
+    Every actor of the run must be started with the same run id, world, steps, seed and
+    parameters; the world actor starts stepping once the four others are alive. Ctrl-C or
+    SIGTERM stops it (session closed).
+    """
+    import signal
+
+    if name not in ACTORS:
+        raise ValueError(f"unknown actor {name!r}; known: {', '.join(ACTORS)}")
+    ctx.extra.setdefault("placement", "distributed")
+
+    async def main() -> dict | None:
+        result = None
+        with zenoh.open(config) as session:
+            async with trio.open_nursery() as nursery:
+                async def until_signal() -> None:
+                    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+                        async for _ in signals:
+                            nursery.cancel_scope.cancel()
+                            return
+
+                nursery.start_soon(until_signal)
+                ready = None
+                if name == "world":
+                    ready = trio.Event()
+                    await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 3600)
+                    ready.set()
+                result = await _run_actor(name, session, ctx, ready)
+                nursery.cancel_scope.cancel()
+        return result
+
+    result = trio.run(main)
+    if result is None:
+        raise KeyboardInterrupt
+    return result

@@ -1,0 +1,51 @@
+#!/usr/bin/env python3
+"""Lockstep steps per second of each placement, all learning on (issue 5's "Fast").
+
+Runs the same world, seed and parameters with the synchronous loop, the embedded actors and one
+process per actor, prints steps/s and waits, and checks that the three learned the same thing.
+
+Usage: scripts/bench_placements.py [--world core] [--steps 6000] [--lag 500] [--babble 3000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+
+def main() -> None:
+    import worlds
+    from actors.common import RunContext
+    from qlap_runtime.agent_run import params_for_world, run_agent
+    from qlap_runtime.qlap import Params
+    from qlap_runtime.runtime.launcher import run_embedded, run_processes
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--world", default="core")
+    ap.add_argument("--steps", type=int, default=6000)
+    ap.add_argument("--lag", type=int, default=500)
+    ap.add_argument("--babble", type=int, default=3000)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    world = worlds.make(args.world)
+    params = params_for_world(world, Params(babble_steps=args.babble, batch_lag=args.lag))
+    t0 = time.perf_counter()
+    agent, _ = run_agent(world, args.steps, args.seed, params=params)
+    wall = time.perf_counter() - t0
+    world.close()
+    reference = json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+    print(f"{args.world}, {args.steps} steps, lag {args.lag}, babbling {args.babble}:")
+    print(f"  sync       {args.steps / wall:8,.0f} steps/s")
+    for name, fn in (("embedded", run_embedded), ("processes", run_processes)):
+        out = Path(tempfile.mkdtemp(prefix=f"bench-{name}-"))
+        s = fn(RunContext(f"bench-{name}", args.world, args.steps, args.seed, params, out=out))
+        same = (out / "knowledge.json").read_text() == reference
+        print(f"  {name:10s} {s['steps_per_s']:8,.0f} steps/s  waits {s['waits']}  "
+              f"identical knowledge: {same}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,61 @@
+"""The distributed pieces from the command line: a router and one `qlap actor` per actor."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import worlds
+from qlap_runtime.agent_run import params_for_world, run_agent
+from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.launcher import free_port
+
+STEPS, SEED, LAG, BABBLE = 2600, 4, 300, 2000
+
+
+def qlap(*args: str) -> list[str]:
+    return [sys.executable, "-m", "qlap_runtime.cli", *args]
+
+
+def test_router_and_five_actor_processes_learn_what_the_synchronous_loop_learns(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = subprocess.Popen(qlap("router", "--listen", endpoint),
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    procs = []
+    try:
+        common = ["--connect", endpoint, "--run", "dist-test", "--world", "core2d", "--steps",
+                  str(STEPS), "--seed", str(SEED), "--lag", str(LAG), "--babble-steps",
+                  str(BABBLE)]
+        for name in ("perception", "contingency", "landmarks", "executor", "world"):
+            extra = ["--out", str(tmp_path)] if name == "executor" else []
+            procs.append(subprocess.Popen(qlap("actor", name, *common, *extra),
+                                          stdout=subprocess.PIPE, stderr=subprocess.PIPE))
+        for p in procs:
+            out, err = p.communicate(timeout=240)
+            assert p.returncode == 0, err.decode()[-2000:]
+        world_result = json.loads(out)
+        assert world_result["steps"] == STEPS
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+        router.terminate()
+        router.wait(10)
+    world = worlds.make("core2d")
+    agent, _ = run_agent(world, STEPS, SEED,
+                         params=params_for_world(world, Params(batch_lag=LAG,
+                                                               babble_steps=BABBLE)))
+    world.close()
+    expected = json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+    assert (tmp_path / "knowledge.json").read_text() == expected
+
+
+def test_actor_rejects_bad_arguments():
+    r = subprocess.run(qlap("actor", "world", "--connect", "tcp/127.0.0.1:1", "--run", "a/b"),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert "run id" in r.stderr
+    r = subprocess.run(qlap("actor", "nobody", "--connect", "tcp/127.0.0.1:1", "--run", "a"),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
