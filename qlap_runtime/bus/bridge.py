@@ -44,6 +44,9 @@ agent never waits for it)."""
 
 assert RELIABLE_TOPICS | DISPLAY_TOPICS == set(keys.TOPICS)
 
+LOCKSTEP_TOPICS = frozenset({"sense", "qstate", "motor", "delta/dbn", "delta/landmarks"})
+"""Topics on the lockstep chain, published ``express`` (sent at once, not batched)."""
+
 T = TypeVar("T")
 
 
@@ -288,6 +291,8 @@ class Publisher:
         self.topic = topic
         self.msg_type = TOPIC_TYPES[topic]
         self.congestion = congestion if congestion is not None else congestion_control(topic)
+        if express is None and topic in LOCKSTEP_TOPICS:
+            express = True           # the step chain waits for these: no batching delay
         self._pub = session.declare_publisher(
             self.key, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=self.congestion,
             priority=priority, express=express)
