@@ -117,7 +117,9 @@ def test_goal_dialog_sets_and_clears_a_goal(driver):
             await pilot.press("g")
             assert isinstance(app.screen, GoalScreen)
             await pilot.click("#goal-set")      # pre-filled with the selected action
-            await until(pilot, lambda: app.status.goal == target.label, within=15)
+            # The label may be renumbered by a new landmark meanwhile; the variable stays.
+            await until(pilot, lambda: app.status.goal != "", within=30)
+            assert app.status.goal.split(",")[0] == target.label.split(",")[0]
             assert driver.agent.goal is not None
             assert app.status.mode in ("goal", "idle", "babble")
             await pilot.press("g")
