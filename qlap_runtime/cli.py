@@ -206,6 +206,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return _run_tui(args)
     if args.placement != "sync":
         return _run_actors(args, world, params)
+    if args.record is not None or (args.listen and not interactive):
+        print("qlap run: --record and --listen need the bus: use --placement embedded "
+              "(or the terminal UI for --listen)", file=sys.stderr)
+        world.close()
+        return 2
     agent = None
     if args.resume is not None:
         try:

@@ -35,6 +35,9 @@ def test_bad_world_and_bad_flags_give_clear_errors():
     r = qlap("run", "--lag", "5000", "--steps", "10")
     assert r.returncode == 2
     assert "batch_lag" in r.stderr
+    r = qlap("run", "--headless", "--steps", "10", "--record", "x.mcap")
+    assert r.returncode == 2
+    assert "--placement embedded" in r.stderr
 
 
 def test_show_and_eval_on_a_run(tmp_path):
