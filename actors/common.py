@@ -32,6 +32,11 @@ class RunContext:
     checkpoint_every: int = 10_000
     extra: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def realtime(self) -> bool:
+        """The realtime clock (``extra["clock"] == "realtime"``, rate ``extra["hz"]``)."""
+        return self.extra.get("clock") == "realtime"
+
     def to_json(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "world": self.world, "steps": self.steps,
                 "seed": self.seed, "params": self.params.to_dict(),
@@ -93,6 +98,13 @@ class DeltaInbox:
                 self._take(await self.sub.receive_batch())
             self.wait_s += time.perf_counter() - t0
         return self.book.pop_due(step)
+
+    async def due_now(self, step: int, realtime: bool) -> list:
+        """Lockstep: :meth:`due` (waits). Realtime: what has arrived, applied on arrival."""
+        if not realtime:
+            return await self.due(step)
+        self._take(self.sub.receive_nowait())
+        return self.book.arrived_prefix(step)
 
     def close(self) -> None:
         self.sub.close()

@@ -49,7 +49,7 @@ async def run(session, ctx: RunContext) -> dict:
                     continue
                 p = percept_from_qstate(msg, agent.table)
                 agent.learner.observe_percept(p)
-                for d in await deltas.due(t):
+                for d in await deltas.due_now(t, ctx.realtime):
                     agent.learner.apply_delta(d)
                 motor = agent.decide(p)
                 pub.put(Motor(t, motor))

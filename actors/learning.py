@@ -55,11 +55,11 @@ async def run(session, ctx: RunContext, role: str) -> dict:
                     kinds = batch_kinds(ctx.params, t)
                     if kind in kinds:
                         work = learner.batch_copy()
-                        if ctx.params.batch_lag == 0:
+                        if ctx.params.batch_lag == 0 and not ctx.realtime:
                             _publish(pub, kind, _compute(work, t, kind, batch_s))
                         else:
                             nursery.start_soon(_background, work, t, kind, pub, batch_s)
-                    for d in await deltas.due(t):
+                    for d in await deltas.due_now(t, ctx.realtime):
                         learner.apply_delta(d)
         finally:
             deltas.close()

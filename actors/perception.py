@@ -45,7 +45,7 @@ async def run(session, ctx: RunContext) -> dict:
                 if last_observed >= start and last_observed > deltas.book.last:
                     # Deltas applied at the boundary of the last observed step change the
                     # landmarks used from t on.
-                    apply_landmark_ops(per, await deltas.due(last_observed))
+                    apply_landmark_ops(per, await deltas.due_now(last_observed, ctx.realtime))
                 try:
                     p = per.perceive(t, per.vector(msg.values), copy=False)
                 except InvalidObservation as exc:

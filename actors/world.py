@@ -38,14 +38,42 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
             if ready is not None:
                 await ready.wait()
             start = ctx.extra.get("start_step", 0)
+            period = 1.0 / float(ctx.extra.get("hz", 100.0)) if ctx.realtime else 0.0
+            tick0 = trio.current_time()
+            tick = 0
+            lateness: list[float] = []
             for t in range(start, start + ctx.steps):
+                if ctx.realtime:
+                    # §4 realtime: tick at a fixed rate; a tick more than one period late is
+                    # missed (skipped, counted); the motor not back by the next deadline is
+                    # replaced by the previous one (a late tick).
+                    deadline = tick0 + tick * period
+                    now = trio.current_time()
+                    if now > deadline + period:
+                        skipped = int((now - deadline) // period)
+                        stats["missed_ticks"] = stats.get("missed_ticks", 0) + skipped
+                        tick += skipped
+                        deadline = tick0 + tick * period
+                    await trio.sleep_until(deadline)
+                    lateness.append(trio.current_time() - deadline)
+                    tick += 1
                 values = dict(obs)
                 values.update(applied)
                 pub.put(Sense(t, values))
                 t0 = time.perf_counter()
-                motor = await inbox.get(t)
+                if ctx.realtime:
+                    motor = None
+                    with trio.move_on_at(tick0 + tick * period):   # the next tick's deadline
+                        motor = await inbox.get(t)
+                    if motor is None:
+                        stats["late_ticks"] = stats.get("late_ticks", 0) + 1
+                    for old in [k for k in inbox.buf if k <= t]:
+                        del inbox.buf[old]          # motors that came after their deadline
+                else:
+                    motor = await inbox.get(t)
                 stats["wait_s"] += time.perf_counter() - t0
-                applied = dict(motor.values)
+                if motor is not None:
+                    applied = dict(motor.values)
                 obs = world.step(applied)
                 now = time.perf_counter()
                 if now - last_view >= 0.1:                    # the UI's world panel, 10 Hz
@@ -57,4 +85,12 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
     finally:
         world.close()
     stats["rejected"] = counter.snapshot().total
+    if ctx.realtime and lateness:
+        ms = sorted(x * 1e3 for x in lateness)
+        stats.update(hz=1.0 / period, late_ticks=stats.get("late_ticks", 0),
+                     missed_ticks=stats.get("missed_ticks", 0),
+                     lateness_p50_ms=round(ms[len(ms) // 2], 3),
+                     lateness_p99_ms=round(ms[min(len(ms) - 1, int(len(ms) * 0.99))], 3),
+                     lateness_max_ms=round(ms[-1], 3))
     return stats
+

@@ -47,8 +47,13 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default, fastest); embedded: the actors on one socket-less Zenoh "
                           "session; processes: one process per actor around a router "
                           "(docs/runtime.md). The results are identical")
-    run.add_argument("--clock", choices=("lockstep",), default="lockstep",
-                     help="lockstep: the world waits for the executor (realtime: not yet)")
+    run.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
+                     help="lockstep: the world waits for the executor and due deltas "
+                          "(deterministic); realtime: the world ticks at --hz, deltas apply "
+                          "on arrival, late and missed ticks are counted (embedded and "
+                          "processes placements)")
+    run.add_argument("--hz", type=float, default=100.0,
+                     help="tick rate of the realtime clock (default 100)")
     run.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                      help="also listen on ENDPOINT (e.g. tcp/127.0.0.1:7447) so outside "
                           "subscribers (qlap tui/record/echo --connect) can attach "
@@ -204,6 +209,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     interactive = sys.stdout.isatty() and not args.headless
     if interactive and args.placement == "sync" and args.resume is None:
         return _run_tui(args)
+    if args.clock == "realtime" and args.placement == "sync":
+        print("qlap run: --clock realtime needs --placement embedded or processes",
+              file=sys.stderr)
+        world.close()
+        return 2
     if args.placement != "sync":
         return _run_actors(args, world, params)
     if args.record is not None or (args.listen and not interactive):
@@ -302,9 +312,13 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
         print("qlap run: --record/--listen go with --placement embedded; with processes, "
               "attach `qlap record --connect` to the router", file=sys.stderr)
         return 2
-    ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=args.out)
+    if not args.hz > 0:
+        print(f"qlap run: --hz must be positive, got {args.hz}", file=sys.stderr)
+        return 2
+    ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=args.out,
+                     extra={"clock": args.clock, "hz": args.hz})
     print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
-          f"{args.placement}, lockstep, lag {params.batch_lag}", file=sys.stderr)
+          f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
     if args.placement == "embedded":
         summary = run_embedded(ctx, tuple(args.listen), record=args.record)
     else:
@@ -312,6 +326,10 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     print(f"{summary['steps']} steps in {summary['wall_time_s']} s "
           f"({summary['steps_per_s']} steps/s); waits {summary['waits']}, rejected messages "
           f"{summary['rejected_messages']}")
+    if args.clock == "realtime":
+        print(f"realtime {summary.get('hz')} Hz: late ticks {summary.get('late_ticks')}, "
+              f"missed ticks {summary.get('missed_ticks')}, lateness p50 "
+              f"{summary.get('lateness_p50_ms')} ms, p99 {summary.get('lateness_p99_ms')} ms")
     if args.out is not None:
         knowledge = json.loads((args.out / "knowledge.json").read_text())
         print(format_knowledge(knowledge, limit=25))

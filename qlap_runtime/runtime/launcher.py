@@ -199,7 +199,8 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float) -> dict[str, 
 
 
 def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float) -> dict[str, Any]:
-    summary: dict[str, Any] = {"placement": placement, "clock": "lockstep",
+    clock = ctx.extra.get("clock", "lockstep")
+    summary: dict[str, Any] = {"placement": placement, "clock": clock,
                                "world": ctx.world, "seed": ctx.seed, "steps": ctx.steps,
                                "wall_time_s": round(wall, 3),
                                "steps_per_s": round(ctx.steps / wall, 1) if wall else None,
@@ -208,13 +209,17 @@ def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float) -> d
                                "rejected_messages": sum(r.get("rejected", 0)
                                                         for r in results.values()),
                                "restarts": 0}
+    world = results.get("world", {})
+    for key in ("hz", "late_ticks", "missed_ticks", "lateness_p50_ms", "lateness_p99_ms",
+                "lateness_max_ms"):
+        if key in world:
+            summary[key] = world[key]
     if ctx.out is not None:
         out = Path(ctx.out)
         executor = out / "actors" / "executor.json"
         if executor.exists():
             base = json.loads(executor.read_text())
-            base.update({k: v for k, v in summary.items() if k != "actors"})
-            base["actor_stats"] = results
+            base.update(summary)
             summary = base
         atomic_write_json(out / "summary.json", summary)
     return summary

@@ -79,3 +79,19 @@ class DeltaBook:
         self.applied_versions += len(out)
         self.last = step
         return out
+
+    def arrived_prefix(self, step: int) -> list[Delta]:
+        """Realtime clock: the deltas of batches up to ``step`` that have arrived, in apply
+        order, stopping at the first one still missing (so dbn(t) always precedes
+        landmarks(t)); never waits."""
+        out = []
+        s = self.last + 1
+        while s <= step:
+            keys_s = [] if s in self.skipped else [(s, k) for k in batch_kinds(self.params, s)]
+            if not all(k in self.received for k in keys_s):
+                break
+            out += [self.received.pop(k) for k in keys_s]
+            self.last = s
+            s += 1
+        self.applied_versions += len(out)
+        return out
