@@ -69,7 +69,7 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
             async with trio.open_nursery() as nursery:
                 for name in ACTORS:
                     nursery.start_soon(one, name)
-                await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 30)
+                await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 120)
                 ready.set()
                 for task in extra:                 # e.g. a test's fuzzer on the same session
                     nursery.start_soon(task, session, ctx)
