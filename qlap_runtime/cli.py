@@ -253,7 +253,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
             done = t - state["first"] + 1
             if done % 500 == 0 or done == args.steps:
                 el = time.perf_counter() - state["t0"]
-                lms = sum(len(s.landmarks) for s in agent.learner.perception.spaces)
+                spaces = agent.learner.perception.spaces
+                lms = sum(len(spaces[v.index].landmarks) for v in agent.table
+                          if v.kind.value in ("motor", "magnitude"))   # as in summary.json
                 bar.update(task, completed=done, rate=f"{done / el:,.0f}",
                            dbns=len(agent.learner.dbns), plans=len(agent.plans), lms=lms)
 
