@@ -300,6 +300,11 @@ class Perception:
         else:
             ids = ev_vars
             events = ()
+        self._remember(x, q)
+        return Percept(step, x, q, events, ids)
+
+    def _remember(self, x: np.ndarray, q: np.ndarray) -> None:
+        """The step's values become the previous ones and enter the bounded history."""
         self.steps_seen += 1
         cap = self.hist_x.shape[0]
         self.hist_x[self.hist_head] = x
@@ -308,7 +313,6 @@ class Perception:
         self.hist_len = min(self.hist_len + 1, cap)
         self.prev_x = x
         self.prev_q = q
-        return Percept(step, x, q, events, ids)
 
     def ingest(self, p: Percept) -> Percept:
         """Record a percept computed by another perception with the same landmarks (the
@@ -319,14 +323,7 @@ class Perception:
         off, mult = self.events.offset, self.events.mult
         ids = np.array([off[e.var] + e.value * mult[e.var] + (1 if e.direction < 0 else 0)
                         for e in p.events], dtype=np.int64)
-        self.steps_seen += 1
-        cap = self.hist_x.shape[0]
-        self.hist_x[self.hist_head] = x
-        self.hist_q[self.hist_head] = q
-        self.hist_head = (self.hist_head + 1) % cap
-        self.hist_len = min(self.hist_len + 1, cap)
-        self.prev_x = x
-        self.prev_q = q
+        self._remember(x, q)
         return Percept(p.step, x, q, p.events, ids)
 
     def _validate(self, step: int, x: np.ndarray) -> bool:

@@ -77,6 +77,24 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     return _finish(ctx, "embedded", results, time.perf_counter() - t0)
 
 
+async def _connected_actor(name: str, config: zenoh.Config, ctx: Any, watcher: Any,
+                           alive_limit_s: float) -> dict | None:
+    """One actor on its own client session, stopped early when ``watcher(cancel_scope)``
+    cancels it (signals, launcher gone); returns None if stopped before the end."""
+    result = None
+    with zenoh.open(config) as session:
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(watcher, nursery.cancel_scope)
+            ready = None
+            if name == "world":
+                ready = trio.Event()
+                await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, alive_limit_s)
+                ready.set()
+            result = await _run_actor(name, session, ctx, ready)
+            nursery.cancel_scope.cancel()
+    return result
+
+
 def run_embedded(ctx: Any, listen: tuple[str, ...] = (), record: Path | None = None
                  ) -> dict[str, Any]:
     """:func:`run_embedded_async` under trio; Ctrl-C cancels every actor at its next
@@ -120,21 +138,7 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) ->
                         return
         cancel.cancel()                             # the launcher died: stop, close the session
 
-    async def main() -> dict | None:
-        result = None
-        with zenoh.open(client_config([endpoint])) as session:
-            async with trio.open_nursery() as nursery:
-                nursery.start_soon(watch, nursery.cancel_scope)
-                ready = None
-                if name == "world":
-                    ready = trio.Event()
-                    await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 60)
-                    ready.set()
-                result = await _run_actor(name, session, ctx, ready)
-                nursery.cancel_scope.cancel()
-        return result
-
-    result = trio.run(main)
+    result = trio.run(_connected_actor, name, client_config([endpoint]), ctx, watch, 60)
     if result is None:
         raise SystemExit(143)                       # stopped before the end of the run
     atomic_write_json(Path(result_path), result)
@@ -238,27 +242,13 @@ def run_actor(name: str, ctx: Any, config: zenoh.Config) -> dict[str, Any]:
         raise ValueError(f"unknown actor {name!r}; known: {', '.join(ACTORS)}")
     ctx.extra.setdefault("placement", "distributed")
 
-    async def main() -> dict | None:
-        result = None
-        with zenoh.open(config) as session:
-            async with trio.open_nursery() as nursery:
-                async def until_signal() -> None:
-                    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
-                        async for _ in signals:
-                            nursery.cancel_scope.cancel()
-                            return
+    async def until_signal(cancel: trio.CancelScope) -> None:
+        with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+            async for _ in signals:
+                cancel.cancel()
+                return
 
-                nursery.start_soon(until_signal)
-                ready = None
-                if name == "world":
-                    ready = trio.Event()
-                    await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 3600)
-                    ready.set()
-                result = await _run_actor(name, session, ctx, ready)
-                nursery.cancel_scope.cancel()
-        return result
-
-    result = trio.run(main)
+    result = trio.run(_connected_actor, name, config, ctx, until_signal, 3600)
     if result is None:
         raise KeyboardInterrupt
     return result
