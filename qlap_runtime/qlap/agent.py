@@ -35,7 +35,7 @@ from .learner import ModelLearner
 from .mdp import Role, greedy_action, sarsa_reward
 from .params import Params
 from .perception import Percept
-from .planner import Plan, creates_cycle, dbn_rel_state
+from .planner import Plan, PlanTooLarge, creates_cycle, dbn_rel_state, plan_entries
 from .probability import prob_above
 from .variables import Kind, VariableTable
 
@@ -182,7 +182,14 @@ class Agent:
                 self._remove_plan(pid)
         self._update_plan_contexts()
         self._convert_dbns_to_plans(t)
-        changed = {pid for pid, plan in self.plans.items() if self._rebuild(plan)}
+        changed = set()
+        for pid in sorted(self.plans):
+            try:
+                if self._rebuild(self.plans[pid]):
+                    changed.add(pid)
+            except PlanTooLarge:
+                self._remove_plan(pid)                  # outgrew Params.max_plan_entries
+                changed.add(pid)
         if changed & {f.plan_id for f in self.call_list}:
             self._interrupt()
         self._update_self()
@@ -223,7 +230,11 @@ class Agent:
             dbn = self.learner.dbns[plan.dbn_id]
             plan.recount(quantize, sizes)
             cands = [v for v in self.learner._candidates(dbn) if v not in dbn.context]
-            plan.update_context(cands, quantize, sizes)
+            before = plan.context_o
+            if plan.update_context(cands, quantize, sizes) and \
+                    plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
+                plan.context_o = before                 # too large a state space: keep C_o
+                plan.recount(quantize, sizes)
 
     def _plan_edges(self) -> set[tuple[ActionKey, ActionKey]]:
         edges = set()
@@ -286,8 +297,8 @@ class Agent:
                     continue
                 if slots.free <= 0 and slots.replaceable is not None:
                     self._remove_plan(change_plans[slots.replaceable].id)
-            self._add_plan(dbn, t)
-            edges.add(edge)
+            if self._add_plan(dbn, t) is not None:
+                edges.add(edge)
 
     def _reliable_at(self, dbn: DBN, theta: float) -> bool:
         st = model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), self.params)
@@ -297,7 +308,11 @@ class Agent:
         return prob_above(theta, float(dbn.cpt_s[i]), float(dbn.cpt_f[i]), self.params.prior,
                           self.params.beta_confidence)
 
-    def _add_plan(self, dbn: DBN, t: int) -> Plan:
+    def _add_plan(self, dbn: DBN, t: int) -> Plan | None:
+        if plan_entries((), dbn, self._sizes()) > self.params.max_plan_entries:
+            self.counters.extra["plans_too_large"] = \
+                self.counters.extra.get("plans_too_large", 0) + 1
+            return None
         plan = Plan(self.next_plan_id, dbn, self.table, self.params, t, len(self.table))
         self.next_plan_id += 1
         self.plans[plan.id] = plan

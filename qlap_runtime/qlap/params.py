@@ -153,6 +153,12 @@ class Params:
     plan_remove_below: float = 0.05
     """A plan whose rel(o) falls below this is removed (§6.2.2)."""
 
+    max_plan_entries: int = 50_000
+    """Resource limit: a plan's Q-table may hold at most this many (state, action) entries.
+    A DBN whose plan would be larger is not converted, a C_o that would make it larger is not
+    adopted, and a plan that outgrows it (new landmarks) is removed (§8.3; without it the state
+    spaces Q(C_o) × Q(C) × Q(X) × Q(Y) of a long run exhaust memory)."""
+
     ablations: Ablations = field(default_factory=Ablations)
     """Switches of §7.11."""
 
@@ -172,7 +178,7 @@ class Params:
         positive = ("brel_min_successes", "min_data_points", "k_initial", "max_context_vars",
                     "stored_activations", "dbn_period", "landmark_period", "event_history",
                     "option_max_steps", "option_max_calls", "stuck_steps", "iac_window",
-                    "max_plans_per_action")
+                    "max_plans_per_action", "max_plan_entries")
         for name in positive:
             value = getattr(self, name)
             if int(value) != value or value < 1:

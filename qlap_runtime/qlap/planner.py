@@ -33,6 +33,19 @@ RelAction = Callable[[int, int], float]
 """rel(a) of the action a(var, value)."""
 
 
+class PlanTooLarge(ValueError):
+    """The plan's Q-table would exceed ``Params.max_plan_entries``."""
+
+
+def plan_entries(context_o, dbn: DBN, sizes) -> int:
+    """(states × an upper bound of actions) of the plan a DBN would give with extra context
+    ``context_o``: the size check before anything is built."""
+    vars_ = set(context_o) | set(dbn.context) | {dbn.antecedent.var, dbn.consequent.var}
+    n_states = int(np.prod([int(sizes[v]) for v in vars_]))
+    n_actions = sum(int(sizes[v]) for v in vars_) + 1
+    return n_states * n_actions
+
+
 class Plan:
     """One option for the action a(Y, y), built from DBN ``dbn_id`` (§5.2, §5.3)."""
 
@@ -84,6 +97,9 @@ class Plan:
         groups = [self.context_o, dbn.context, [ante.var], [self.goal.var]]
         space = PlanStateSpace.from_groups(groups, {v: int(sizes[v]) for g in groups for v in g})
         actions = build_actions(space, spec)
+        if space.n_states * len(actions) > self.params.max_plan_entries:
+            raise PlanTooLarge(f"plan for DBN {self.dbn_id}: {space.n_states} states × "
+                               f"{len(actions)} actions > {self.params.max_plan_entries}")
         same = (not fresh and self.space is not None and space == self.space
                 and actions == self.actions and spec == self.spec)
         self.spec, self.space, self.actions = spec, space, actions
