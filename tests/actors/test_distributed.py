@@ -14,16 +14,32 @@ from qlap_runtime.runtime.launcher import free_port
 STEPS, SEED, LAG, BABBLE = 2600, 4, 300, 2000
 
 
+def wait_listening(port: int, limit_s: float = 30.0) -> None:
+    """Wait until the router accepts TCP connections (it starts in another process)."""
+    import socket
+    import time
+
+    deadline = time.monotonic() + limit_s
+    while True:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        assert time.monotonic() < deadline, f"router not listening on {port}"
+        time.sleep(0.1)
+
+
 def qlap(*args: str) -> list[str]:
     return [sys.executable, "-m", "qlap_runtime.cli", *args]
 
 
 def test_router_and_five_actor_processes_learn_what_the_synchronous_loop_learns(tmp_path):
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
     router = subprocess.Popen(qlap("router", "--listen", endpoint),
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     procs = []
     try:
+        wait_listening(port)
         common = ["--connect", endpoint, "--run", "dist-test", "--world", "core2d", "--steps",
                   str(STEPS), "--seed", str(SEED), "--lag", str(LAG), "--babble-steps",
                   str(BABBLE)]
