@@ -30,8 +30,11 @@ def running(pid: int) -> bool:
 def start(placement: str) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "qlap_runtime.cli", "run", "--headless", "--quiet",
            "--placement", placement, "--world", "core2d", "--steps", "1000000"]
+    # A runner in the background (CI) may ignore SIGINT, and children inherit that: restore the
+    # default so the run sees Ctrl-C as a terminal would deliver it.
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            start_new_session=True)
+                            start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def wait_running(p: subprocess.Popen, placement: str, limit: float = 60) -> list[int]:
@@ -70,3 +73,4 @@ def test_a_run_stops_promptly_and_leaves_nothing(placement, sig):
     finally:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
+        p.communicate()                                 # reap it and close its pipes
