@@ -116,6 +116,7 @@ def test_goal_dialog_sets_and_clears_a_goal(driver):
             await select(pilot, panel, target.label)
             await pilot.press("g")
             assert isinstance(app.screen, GoalScreen)
+            await pilot.pause(0.5)              # let the dialog mount fully on a loaded machine
             await pilot.click("#goal-set")      # pre-filled with the selected action
             # The label may be renumbered by a new landmark meanwhile; the variable stays.
             await until(pilot, lambda: app.status.goal != "", within=30)
