@@ -183,6 +183,7 @@ class QlapApp(App):
         self._handles: list[Any] = []
         self._control_pub: Any = None
         self._closed = False
+        self._refresh_timer: Any = None
 
     # ----------------------------------------------------------------------------- layout
     def compose(self) -> ComposeResult:
@@ -220,11 +221,20 @@ class QlapApp(App):
                                              else list(self._connect or ())))
         runtime.show()
         self.sub_title = f"run {self.run_id or '(any)'}"
-        self.set_interval(1.0 / self.refresh_hz, self.refresh_from_bus)
+
+    def on_ready(self) -> None:
+        # Start draining only once every panel has composed its children (``Ready`` comes
+        # after the first screen is mounted and painted; ``Mount`` may come before that).
+        self._refresh_timer = self.set_interval(1.0 / self.refresh_hz, self.refresh_from_bus)
 
     # ----------------------------------------------------------------------------- updates
     def refresh_from_bus(self) -> None:
-        """Drain the feed and update the panels (the 10 Hz timer)."""
+        """Drain the feed and update the panels (the 10 Hz timer).
+
+        Nothing is drained while the main screen is not (or no longer) mounted, so a tick
+        that races with start-up or shut-down neither crashes the app nor loses messages."""
+        if self._closed or not self.screen_stack or not self.screen_stack[0].is_mounted:
+            return
         latest, iac, stats, alive = self.feed.drain()
         self.refreshes += 1
         if self.run_id is None and self.feed.run_id is not None:
@@ -348,6 +358,8 @@ class QlapApp(App):
         if self._closed:
             return
         self._closed = True
+        if self._refresh_timer is not None:
+            self._refresh_timer.stop()
         for h in [*self._handles, self._control_pub]:
             if h is None:
                 continue
