@@ -23,6 +23,7 @@ import zenoh
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Container, Vertical
+from textual.css.query import NoMatches
 from textual.widgets import Footer, Header
 
 from qlap_runtime.bus import keys
@@ -231,11 +232,19 @@ class QlapApp(App):
     def refresh_from_bus(self) -> None:
         """Drain the feed and update the panels (the 10 Hz timer).
 
-        Nothing is drained while the main screen is not (or no longer) mounted, so a tick
-        that races with start-up or shut-down neither crashes the app nor loses messages."""
+        The timer starts on ``Ready`` (every panel composed); a tick that races with the
+        app's shut-down is skipped instead of crashing it."""
         if self._closed or not self.screen_stack or not self.screen_stack[0].is_mounted:
             return
-        latest, iac, stats, alive = self.feed.drain()
+        try:
+            self._update_panels(*self.feed.drain())
+        except NoMatches:
+            # Textual removes the widgets before it stops the app's timers: a tick during
+            # shut-down finds no panel (nothing is lost that anyone could still see).
+            self.log.debug("refresh during shut-down skipped")
+
+    def _update_panels(self, latest: dict[str, Any], iac: list[Any], stats: list[Stats],
+                       alive: list[tuple[str, bool]]) -> None:
         self.refreshes += 1
         if self.run_id is None and self.feed.run_id is not None:
             self.run_id = self.feed.run_id
