@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import logging
 import time
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -12,11 +14,15 @@ import trio
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import RejectionCounter, TrioSubscriber
+from qlap_runtime.bus.replay import fetch_replay
 from qlap_runtime.bus.schema import DeltaMsg, QState
 from qlap_runtime.qlap.params import Params
 from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.variables import Event, VariableTable
+from qlap_runtime.runtime import snapshot as snap
 from qlap_runtime.runtime.lockstep import DeltaBook
+
+log = logging.getLogger("qlap.actors")
 
 
 @dataclass
@@ -36,6 +42,33 @@ class RunContext:
     def realtime(self) -> bool:
         """The realtime clock (``extra["clock"] == "realtime"``, rate ``extra["hz"]``)."""
         return self.extra.get("clock") == "realtime"
+
+    @property
+    def start(self) -> int:
+        """The first step of the run (``extra["start_step"]``, 0 by default)."""
+        return int(self.extra.get("start_step", 0))
+
+    @property
+    def snapshot_dir(self) -> Path | None:
+        """Where actors write their snapshots (``extra["snapshot_dir"]``, set by the processes
+        launcher); None: no snapshots (the embedded placement, or the realtime clock, whose
+        state is not a function of the input stream)."""
+        d = self.extra.get("snapshot_dir")
+        return None if d is None or self.realtime else Path(d)
+
+    @property
+    def snapshot_every(self) -> int:
+        return max(1, int(self.extra.get("snapshot_every", snap.DEFAULT_EVERY)))
+
+    @property
+    def replay_keep(self) -> int:
+        """Steps a writer keeps in its replay logs: enough for a consumer whose snapshot is up
+        to two periods old and that died just before a landmark batch was due."""
+        if "replay_keep" in self.extra:
+            return int(self.extra["replay_keep"])
+        p = self.params
+        return 2 * self.snapshot_every + max(p.landmark_period, p.dbn_period) \
+            + 2 * p.batch_lag + 100
 
     def to_json(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "world": self.world, "steps": self.steps,
@@ -61,33 +94,96 @@ def world_variables(spec: str) -> tuple[Any, dict[str, Any]]:
         w.close()
 
 
-class StepInbox:
-    """Messages of one topic, indexed by step; ``await get(t)`` returns step t's message."""
+REFILL_AFTER_S = 1.0
+"""A restarted actor waiting this long for a step while later steps are buffered asks the
+writer's replay log again (a message put while its subscription was still propagating)."""
 
-    def __init__(self, sub: TrioSubscriber) -> None:
+
+class StepInbox:
+    """Messages of one topic, indexed by step; ``await get(t)`` returns step t's message.
+
+    Steps below the next one expected are dropped: a writer restarted from a snapshot publishes
+    again the steps after its snapshot, which this consumer may already have consumed.
+    ``refill(step)`` (a restarted actor's fetch from the writer's replay log) fills gaps.
+    """
+
+    def __init__(self, sub: TrioSubscriber, first: int = 0,
+                 refill: Callable[[int], Awaitable[list]] | None = None) -> None:
         self.sub = sub
         self.buf: dict[int, Any] = {}
+        self.next = first
+        self.refill = refill
+        self.duplicates = 0
+        """Messages dropped because their step was already consumed."""
+
+    def add(self, msg: Any) -> None:
+        if msg.step < self.next:
+            self.duplicates += 1
+        else:
+            self.buf[msg.step] = msg
 
     async def get(self, step: int) -> Any:
         while step not in self.buf:
-            for r in await self.sub.receive_batch():
-                self.buf[r.msg.step] = r.msg
+            if self.refill is None:
+                batch = await self.sub.receive_batch()
+            else:
+                batch = []
+                with trio.move_on_after(REFILL_AFTER_S):
+                    batch = await self.sub.receive_batch()
+                if not batch and any(k > step for k in self.buf):
+                    for msg in await self.refill(step):
+                        self.add(msg)
+            for r in batch:
+                self.add(r.msg)
+        self.next = max(self.next, step + 1)
         return self.buf.pop(step)
+
+    async def fill_from_replay(self, refill: Callable[[int], Awaitable[list]]) -> int:
+        """Add the writer's logged messages from :attr:`next` on (a restarted consumer, after
+        subscribing); keep ``refill`` for gaps; return how many were added."""
+        self.refill = refill
+        msgs = await refill(self.next)
+        for msg in msgs:
+            self.add(msg)
+        return len(msgs)
 
 
 class DeltaInbox:
-    """Receives ``delta/*`` and hands out those due at a step, in apply order."""
+    """Receives ``delta/*`` and hands out those due at a step, in apply order.
+
+    A delta whose turn has passed (already applied here) is ignored: a learner restarted from a
+    snapshot recomputes and publishes again the batches after its snapshot.
+    """
 
     def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> None:
         self.book = DeltaBook(ctx.params)
         self.sub = TrioSubscriber(session, f"{keys.ROOT}/{ctx.run_id}/delta/*", counter=counter)
         self.wait_s = 0.0
+        self.realtime = ctx.realtime
+        self.stale = 0
+
+    def add(self, msg: DeltaMsg) -> None:
+        if msg.kind not in ("dbn", "landmarks"):
+            return
+        delta = msg.to_delta()
+        lag = 0 if self.realtime else self.book.params.batch_lag
+        done = delta.computed_at + lag              # the step at whose boundary it applies
+        if done <= self.book.last:
+            self.stale += 1
+        else:
+            self.book.add(msg.kind, delta)
 
     def _take(self, batch) -> None:
         for r in batch:
-            msg: DeltaMsg = r.msg
-            if msg.kind in ("dbn", "landmarks"):
-                self.book.add(msg.kind, msg.to_delta())
+            self.add(r.msg)
+
+    async def catch_up(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> int:
+        """A restarted actor: add every delta the learners' replay logs hold (after
+        subscribing, so none published meanwhile is lost); return how many came back."""
+        msgs = await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
+        for msg in msgs:
+            self.add(msg)
+        return len(msgs)
 
     async def due(self, step: int) -> list:
         self._take(self.sub.receive_nowait())
@@ -110,33 +206,120 @@ class DeltaInbox:
         self.sub.close()
 
 
+@dataclass
+class Resume:
+    """Where an actor starts: fresh, or restarted by the supervisor (from a snapshot or, when
+    it died before its first one, from the start, with its inputs replayed)."""
+
+    step: int
+    """The last step whose input the state has consumed (``ctx.start - 1`` when fresh)."""
+    path: Path | None = None
+    """The snapshot directory, if any."""
+    state: dict[str, Any] = field(default_factory=dict)
+    """The actor-specific values of the snapshot (see :mod:`~qlap_runtime.runtime.snapshot`)."""
+    restarted: bool = False
+
+    @classmethod
+    def of(cls, ctx: RunContext, actor: str) -> Resume:
+        if not ctx.extra.get("restarted"):
+            return cls(ctx.start - 1)
+        path = ctx.extra.get("resume_from")
+        if not path:
+            return cls(ctx.start - 1, restarted=True)
+        step, state = snap.read_snapshot(Path(path), actor)
+        log.info("%s: resuming from the snapshot at step %d", actor, step)
+        return cls(step, Path(path), state, True)
+
+
+async def resume_inputs(session: Any, ctx: RunContext, resume: Resume, inbox: StepInbox,
+                        topic: str, deltas: DeltaInbox | None,
+                        counter: RejectionCounter) -> None:
+    """A restarted actor, once subscribed: restore its delta book and fetch what it missed
+    (its input topic from the step after its snapshot, and the deltas in the logs)."""
+    if not resume.restarted:
+        return
+    if deltas is not None and "book" in resume.state:
+        snap.restore_book(deltas.book, resume.state["book"])
+
+    async def refill(step: int) -> list:
+        return await fetch_replay(session, ctx.run_id, topic, step, counter=counter)
+
+    got = await inbox.fill_from_replay(refill)
+    if deltas is not None:
+        await deltas.catch_up(session, ctx, counter)
+    first = resume.step + 1
+    if got and first < ctx.start + ctx.steps and first not in inbox.buf:
+        raise RuntimeError(f"cannot resume at step {first}: the {topic} replay log starts at "
+                           f"step {min(inbox.buf)}")
+
+
+def snapshot_due(ctx: RunContext, step: int) -> bool:
+    """True when an actor writes a snapshot at the boundary of ``step``."""
+    return ctx.snapshot_dir is not None and (step + 1 - ctx.start) % ctx.snapshot_every == 0 \
+        and step + 1 < ctx.start + ctx.steps
+
+
+def write_snapshot(ctx: RunContext, actor: str, step: int, deltas: DeltaInbox,
+                   save: Callable[[Path], Any] | None, **state: Any) -> float:
+    """Write the actor's snapshot at the boundary of ``step`` (synchronously: the state must
+    be the one at ``step``); returns the seconds it took."""
+    t0 = time.perf_counter()
+    deltas._take(deltas.sub.receive_nowait())
+    assert ctx.snapshot_dir is not None
+    snap.write_snapshot(ctx.snapshot_dir, actor, step,
+                        {"book": snap.book_state(deltas.book), **state}, save)
+    return time.perf_counter() - t0
+
+
+def snapshot_stats(times: list[float], resume: Resume) -> dict[str, Any]:
+    """What an actor's result says about its snapshots and its restart."""
+    out: dict[str, Any] = {"snapshots": len(times),
+                           "snapshot_max_s": round(max(times, default=0.0), 4)}
+    if resume.restarted:
+        out["resumed_from_step"] = resume.step
+    return out
+
+
 def percept_from_qstate(msg: QState, table: VariableTable) -> Percept:
     """Rebuild the perception actor's :class:`Percept` from its message."""
-    index = _name_index(table)
-    n = len(table)
-    x = np.full(n, np.nan)
-    q = np.full(n, -1, dtype=np.int64)
-    if msg.x:
-        x[[index[k] for k in msg.x]] = list(msg.x.values())
-    if msg.values:
-        q[[index[k] for k in msg.values]] = list(msg.values.values())
+    names, index = _names(table)
+    x = _vector(msg.x, names, index, np.nan, float)
+    q = _vector(msg.values, names, index, -1, np.int64)
     events = tuple(Event(index[name], int(v), int(d)) for name, v, d in msg.events)
     return Percept(msg.step, x, q, events, np.zeros(0, dtype=np.int64))
 
 
-def _name_index(table: VariableTable) -> dict[str, int]:
-    """name -> index of a table (kept on the table; an unknown name raises KeyError)."""
-    index = getattr(table, "_name_index", None)
-    if index is None:
-        index = {v.name: v.index for v in table}
-        table._name_index = index  # type: ignore[attr-defined]
-    return index
+def _vector(by_name: dict, names: tuple[str, ...], index: dict[str, int], missing: Any,
+            dtype: Any) -> np.ndarray:
+    """``by_name`` as a vector in table order; absent names get ``missing``.
+
+    The common case (every variable present, in table order, as :func:`qstate_of` writes
+    them) is one C-level conversion; otherwise each name is placed by index (an unknown name
+    raises KeyError)."""
+    if len(by_name) == len(names) and tuple(by_name) == names:
+        return np.fromiter(by_name.values(), dtype=dtype, count=len(names))
+    out = np.full(len(names), missing, dtype=dtype)
+    if by_name:
+        out[[index[k] for k in by_name]] = list(by_name.values())
+    return out
+
+
+def _names(table: VariableTable) -> tuple[tuple[str, ...], dict[str, int]]:
+    """(names in table order, name -> index), kept on the table."""
+    cached = getattr(table, "_names_cache", None)
+    if cached is None or len(cached[0]) != len(table):
+        names = tuple(v.name for v in sorted(table, key=lambda v: v.index))
+        cached = (names, {name: i for i, name in enumerate(names)})
+        table._names_cache = cached  # type: ignore[attr-defined]
+    return cached
 
 
 def qstate_of(p: Percept, table: VariableTable) -> QState:
-    names = [v.name for v in table]
-    x = {names[i]: float(v) for i, v in enumerate(p.x) if not np.isnan(v)}
-    q = {names[i]: int(v) for i, v in enumerate(p.q) if v >= 0}
+    names, _ = _names(table)
+    xs = p.x.tolist()
+    qs = p.q.tolist()
+    x = {k: v for k, v in zip(names, xs, strict=True) if v == v}          # NaN: not yet known
+    q = {k: v for k, v in zip(names, qs, strict=True) if v >= 0}
     events = tuple((names[e.var], int(e.value), int(e.direction)) for e in p.events)
     return QState(p.step, q, events, x)
 
