@@ -15,53 +15,76 @@ from pathlib import Path
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
+from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import Motor
 from qlap_runtime.qlap.agent import Agent
-from qlap_runtime.qlap.checkpoint import atomic_write_json, save_agent
+from qlap_runtime.qlap.checkpoint import atomic_write_json, load_agent, save_agent
 
-from .common import DeltaInbox, RunContext, StepInbox, percept_from_qstate, world_variables
+from .common import (
+    DeltaInbox,
+    Resume,
+    RunContext,
+    StepInbox,
+    percept_from_qstate,
+    resume_inputs,
+    snapshot_due,
+    snapshot_stats,
+    world_variables,
+    write_snapshot,
+)
 
 NAME = "executor"
 
 
 async def run(session, ctx: RunContext) -> dict:
     specs, _ = world_variables(ctx.world)
-    agent = Agent(specs, ctx.params, seed=ctx.seed)
+    resume = Resume.of(ctx, NAME)
+    agent = load_agent(resume.path) if resume.path is not None \
+        else Agent(specs, ctx.params, seed=ctx.seed)
     agent.learner.auto_batches = False
     agent.learner.follower = True
     counter = RejectionCounter(NAME)
-    rejected: list[str] = []
+    rejected: list[str] = list(resume.state.get("rejected", []))
+    snapshot_s: list[float] = []
     t_start = time.perf_counter()
     with declare_alive(session, ctx.run_id, NAME), \
             TrioSubscriber(session, keys.key(ctx.run_id, "qstate"), counter=counter) as sub, \
             Publisher(session, ctx.run_id, "motor") as pub, \
+            ReplayLog(session, ctx.run_id, "motor", ctx.replay_keep) as replay, \
             Display(session, ctx) as display:
         deltas = DeltaInbox(session, ctx, counter)
         try:
-            inbox = StepInbox(sub)
-            start = ctx.extra.get("start_step", 0)
-            for t in range(start, start + ctx.steps):
+            inbox = StepInbox(sub, first=resume.step + 1)
+            await resume_inputs(session, ctx, resume, inbox, "qstate", deltas, counter)
+            for t in range(resume.step + 1, ctx.start + ctx.steps):
                 msg = await inbox.get(t)
                 if msg.rejected:
                     deltas.book.skipped.add(t)
                     rejected.append(f"step {t}: {msg.rejected}")
-                    pub.put(Motor(t, dict(agent.motor)))
-                    continue
-                p = percept_from_qstate(msg, agent.table)
-                agent.learner.observe_percept(p)
-                for d in await deltas.due_now(t, ctx.realtime):
-                    agent.learner.apply_delta(d)
-                motor = agent.decide(p)
-                pub.put(Motor(t, motor))
-                display.publish(agent, deltas)
-                if ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
-                    save_agent(agent, Path(ctx.out) / "checkpoints" / f"step-{t + 1:07d}")
+                    motor = Motor(t, dict(agent.motor))
+                else:
+                    p = percept_from_qstate(msg, agent.table)
+                    agent.learner.observe_percept(p)
+                    for d in await deltas.due_now(t, ctx.realtime):
+                        agent.learner.apply_delta(d)
+                    motor = Motor(t, dict(agent.decide(p)))
+                pub.put(motor)
+                replay.append(t, motor)
+                if not msg.rejected:
+                    display.publish(agent, deltas)
+                    if ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
+                        save_agent(agent, Path(ctx.out) / "checkpoints" / f"step-{t + 1:07d}")
+                if snapshot_due(ctx, t):
+                    snapshot_s.append(write_snapshot(ctx, NAME, t, deltas,
+                                                     lambda d: save_agent(agent, d),
+                                                     rejected=rejected))
         finally:
             deltas.close()
     wall = time.perf_counter() - t_start
     result = {"rejected": counter.snapshot().total, "waits": deltas.book.waits,
               "wait_s": round(deltas.wait_s, 3), "rejected_observations": len(rejected),
-              "rejected_examples": rejected[:20], "wall_s": wall}
+              "rejected_examples": rejected[:20], "wall_s": wall,
+              **snapshot_stats(snapshot_s, resume)}
     if ctx.out is not None:
         out = Path(ctx.out)
         atomic_write_json(out / "knowledge.json", agent.knowledge())

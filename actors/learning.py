@@ -20,11 +20,24 @@ import trio
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
+from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import DeltaMsg
+from qlap_runtime.qlap.checkpoint import load_learner, save_learner
 from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.runtime.lockstep import batch_kinds
 
-from .common import DeltaInbox, RunContext, StepInbox, percept_from_qstate, world_variables
+from .common import (
+    DeltaInbox,
+    Resume,
+    RunContext,
+    StepInbox,
+    percept_from_qstate,
+    resume_inputs,
+    snapshot_due,
+    snapshot_stats,
+    world_variables,
+    write_snapshot,
+)
 
 ROLES = {"contingency": "dbn", "landmarks": "landmarks"}
 
@@ -34,37 +47,82 @@ async def run(session, ctx: RunContext, role: str) -> dict:
         raise ValueError(f"unknown learning role {role!r}; expected {sorted(ROLES)}")
     kind = ROLES[role]
     specs, _ = world_variables(ctx.world)
-    learner = ModelLearner(specs, ctx.params)
+    resume = Resume.of(ctx, role)
+    learner = load_learner(resume.path) if resume.path is not None \
+        else ModelLearner(specs, ctx.params)
     learner.auto_batches = False
     counter = RejectionCounter(role)
     batch_s: list[float] = []
+    snapshot_s: list[float] = []
+    in_flight: set[int] = set()
+    """Batch steps being computed in a worker thread (their delta not yet published)."""
     with declare_alive(session, ctx.run_id, role), \
             TrioSubscriber(session, keys.key(ctx.run_id, "qstate"), counter=counter) as sub, \
-            Publisher(session, ctx.run_id, f"delta/{kind}") as pub:
+            Publisher(session, ctx.run_id, f"delta/{kind}") as pub, \
+            ReplayLog(session, ctx.run_id, f"delta/{kind}", ctx.replay_keep) as replay:
         deltas = DeltaInbox(session, ctx, counter)
+        out = Outbox(pub, replay, kind, ctx.params.batch_lag, in_flight)
         try:
+            inbox = StepInbox(sub, first=resume.step + 1)
+            for d in resume.state.get("own", []):      # published before the snapshot
+                out.log(DeltaMsg(kind, d))
+            await resume_inputs(session, ctx, resume, inbox, "qstate", deltas, counter)
+            for entry in replay.entries():
+                deltas.add(entry[1])            # its own deltas not yet applied here
+            snapshot_pending = False
             async with trio.open_nursery() as nursery:
-                inbox = StepInbox(sub)
-                start = ctx.extra.get("start_step", 0)
-                for t in range(start, start + ctx.steps):
+                for t in range(resume.step + 1, ctx.start + ctx.steps):
                     msg = await inbox.get(t)
                     if msg.rejected:
                         deltas.book.skipped.add(t)
-                        continue
-                    learner.observe_percept(percept_from_qstate(msg, learner.table))
-                    kinds = batch_kinds(ctx.params, t)
-                    if kind in kinds:
-                        work = learner.batch_copy()
-                        if ctx.params.batch_lag == 0 and not ctx.realtime:
-                            _publish(pub, kind, _compute(work, t, kind, batch_s))
-                        else:
-                            nursery.start_soon(_background, work, t, kind, pub, batch_s)
-                    for d in await deltas.due_now(t, ctx.realtime):
-                        learner.apply_delta(d)
+                    else:
+                        learner.observe_percept(percept_from_qstate(msg, learner.table))
+                        if kind in batch_kinds(ctx.params, t):
+                            work = learner.batch_copy()
+                            if ctx.params.batch_lag == 0 and not ctx.realtime:
+                                out.publish(_compute(work, t, kind, batch_s))
+                            else:
+                                in_flight.add(t)
+                                nursery.start_soon(_background, work, t, kind, out, batch_s)
+                        for d in await deltas.due_now(t, ctx.realtime):
+                            learner.apply_delta(d)
+                    # A snapshot at t must not miss a batch computed at or before t: with one
+                    # in flight it waits for the first step after its delta was published.
+                    snapshot_pending = snapshot_pending or snapshot_due(ctx, t)
+                    if snapshot_pending and not in_flight and t + 1 < ctx.start + ctx.steps:
+                        snapshot_pending = False
+                        snapshot_s.append(write_snapshot(
+                            ctx, role, t, deltas, lambda d: save_learner(learner, d),
+                            own=[m.delta for m in out.pending(t)]))
         finally:
             deltas.close()
     return {"rejected": counter.snapshot().total, "waits": deltas.book.waits,
-            "batches": len(batch_s), "batch_s": round(sum(batch_s), 3)}
+            "batches": len(batch_s), "batch_s": round(sum(batch_s), 3),
+            **snapshot_stats(snapshot_s, resume)}
+
+
+class Outbox:
+    """Publishes this learner's deltas and keeps them in its replay log until every consumer
+    has applied them (a restarted consumer fetches those it missed)."""
+
+    def __init__(self, pub: Publisher, replay: ReplayLog, kind: str, lag: int,
+                 in_flight: set[int]) -> None:
+        self.pub, self.replay, self.kind, self.lag = pub, replay, kind, lag
+        self.in_flight = in_flight
+
+    def log(self, msg: DeltaMsg) -> None:
+        self.replay.append(msg.to_delta().computed_at + self.lag, msg)
+
+    def publish(self, delta) -> None:
+        msg = DeltaMsg.of(self.kind, delta)
+        self.log(msg)
+        self.pub.put(msg)
+        self.in_flight.discard(delta.computed_at)
+
+    def pending(self, step: int) -> list[DeltaMsg]:
+        """Own deltas published but applied after ``step`` (a snapshot at ``step`` keeps
+        them: the restarted learner needs them and serves them again)."""
+        return [m for s, m in self.replay.entries(step + 1)]
 
 
 def _compute(work: ModelLearner, t: int, kind: str, times: list[float]):
@@ -76,11 +134,7 @@ def _compute(work: ModelLearner, t: int, kind: str, times: list[float]):
     return parts[kind]
 
 
-async def _background(work: ModelLearner, t: int, kind: str, pub: Publisher,
+async def _background(work: ModelLearner, t: int, kind: str, out: Outbox,
                       times: list[float]) -> None:
     delta = await trio.to_thread.run_sync(_compute, work, t, kind, times)
-    _publish(pub, kind, delta)
-
-
-def _publish(pub: Publisher, kind: str, delta) -> None:
-    pub.put(DeltaMsg.of(kind, delta))
+    out.publish(delta)

@@ -4,12 +4,25 @@ from __future__ import annotations
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
+from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import QState
 from qlap_runtime.qlap.perception import InvalidObservation, Perception
 from qlap_runtime.qlap.quantity import Landmark
 from qlap_runtime.qlap.variables import VariableTable
+from qlap_runtime.runtime.snapshot import load_perception, save_perception
 
-from .common import DeltaInbox, RunContext, StepInbox, qstate_of, world_variables
+from .common import (
+    DeltaInbox,
+    Resume,
+    RunContext,
+    StepInbox,
+    qstate_of,
+    resume_inputs,
+    snapshot_due,
+    snapshot_stats,
+    world_variables,
+    write_snapshot,
+)
 
 NAME = "perception"
 
@@ -32,15 +45,21 @@ async def run(session, ctx: RunContext) -> dict:
     per = Perception(table, ctx.params)
     counter = RejectionCounter(NAME)
     rejected_obs = 0
+    resume = Resume.of(ctx, NAME)
+    if resume.path is not None:
+        load_perception(per, resume.path)
+    snapshot_s: list[float] = []
     with declare_alive(session, ctx.run_id, NAME), \
             TrioSubscriber(session, keys.key(ctx.run_id, "sense"), counter=counter) as sub, \
-            Publisher(session, ctx.run_id, "qstate") as pub:
+            Publisher(session, ctx.run_id, "qstate") as pub, \
+            ReplayLog(session, ctx.run_id, "qstate", ctx.replay_keep) as replay:
         deltas = DeltaInbox(session, ctx, counter)
         try:
-            inbox = StepInbox(sub)
-            start = ctx.extra.get("start_step", 0)
-            last_observed = start - 1
-            for t in range(start, start + ctx.steps):
+            inbox = StepInbox(sub, first=resume.step + 1)
+            await resume_inputs(session, ctx, resume, inbox, "sense", deltas, counter)
+            start = ctx.start
+            last_observed = int(resume.state.get("last_observed", start - 1))
+            for t in range(resume.step + 1, start + ctx.steps):
                 msg = await inbox.get(t)
                 if last_observed >= start and last_observed > deltas.book.last:
                     # Deltas applied at the boundary of the last observed step change the
@@ -52,11 +71,17 @@ async def run(session, ctx: RunContext) -> dict:
                     rejected_obs += 1
                     deltas.book.skipped.add(t)
                     counter.reject(keys.key(ctx.run_id, "sense"), str(exc))
-                    pub.put(QState(t, {}, (), {}, rejected=str(exc)[:500]))
-                    continue
-                last_observed = t
-                pub.put(qstate_of(p, table))
+                    out = QState(t, {}, (), {}, rejected=str(exc)[:500])
+                else:
+                    last_observed = t
+                    out = qstate_of(p, table)
+                pub.put(out)
+                replay.append(t, out)
+                if snapshot_due(ctx, t):
+                    snapshot_s.append(write_snapshot(
+                        ctx, NAME, t, deltas, lambda d: save_perception(per, d),
+                        last_observed=last_observed))
         finally:
             deltas.close()
     return {"rejected": counter.snapshot().total, "rejected_observations": rejected_obs,
-            "waits": deltas.book.waits}
+            "waits": deltas.book.waits, **snapshot_stats(snapshot_s, resume)}

@@ -1,7 +1,9 @@
 """The world actor: steps the physics in lockstep with the executor (DESIGN.md §3.3).
 
 Publishes ``sense(t)`` — the world's observation at t plus the motor values being applied
-(those of ``motor(t − 1)``) — then waits for ``motor(t)``, applies it and steps.
+(those of ``motor(t − 1)``) — then waits for ``motor(t)``, applies it and steps. It keeps its
+recent ``sense`` messages in a replay log for a perception actor restarted from a snapshot.
+The world itself is not restartable: its physics state is not snapshotted (docs/runtime.md).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import trio
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
+from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import Sense, WorldView
 
 from .common import RunContext, StepInbox
@@ -32,12 +35,13 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
         with declare_alive(session, ctx.run_id, NAME), \
                 TrioSubscriber(session, keys.key(ctx.run_id, "motor"), counter=counter) as sub, \
                 Publisher(session, ctx.run_id, "sense") as pub, \
-                Publisher(session, ctx.run_id, "world") as view:
-            inbox = StepInbox(sub)
+                Publisher(session, ctx.run_id, "world") as view, \
+                ReplayLog(session, ctx.run_id, "sense", ctx.replay_keep) as replay:
+            start = ctx.start
+            inbox = StepInbox(sub, first=start)
             last_view = 0.0
             if ready is not None:
                 await ready.wait()
-            start = ctx.extra.get("start_step", 0)
             period = 1.0 / float(ctx.extra.get("hz", 100.0)) if ctx.realtime else 0.0
             tick0 = trio.current_time()
             tick = 0
@@ -59,7 +63,9 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                     tick += 1
                 values = dict(obs)
                 values.update(applied)
-                pub.put(Sense(t, values))
+                sense = Sense(t, values)
+                pub.put(sense)
+                replay.append(t, sense)             # for a perception actor restarted later
                 t0 = time.perf_counter()
                 if ctx.realtime:
                     motor = None

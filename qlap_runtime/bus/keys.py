@@ -19,6 +19,8 @@ topic                     writer        message (:mod:`qlap_runtime.bus.schema`)
 ``world``                 agent         :class:`~.schema.WorldView` (display)
 ``status``                agent         :class:`~.schema.AgentStatus` (display)
 ``alive/<actor>``         each actor    liveliness token (no payload)
+``replay/<topic>``        its writer    queryable: the writer's recent messages of a lockstep
+                                        topic (``?from=STEP``), for a restarted consumer
 ========================  ============  =====================================================
 """
 
@@ -35,6 +37,10 @@ TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "delta/pla
 """Every data topic under ``qlap/<run-id>/``."""
 
 ALIVE = "alive"
+
+REPLAY = "replay"
+REPLAY_TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks")
+"""The lockstep topics whose writers keep a replay log (docs/runtime.md, Faults)."""
 
 _FORBIDDEN = set("*$/#?") | {" ", "\t", "\n", "\r"}
 _NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
@@ -75,6 +81,15 @@ def key(run_id: str, topic: str) -> str:
 def alive_key(run_id: str, actor: str) -> str:
     """``qlap/<run-id>/alive/<actor>``: the actor's liveliness token."""
     return f"{ROOT}/{validate_run_id(run_id)}/{ALIVE}/{validate_actor(actor)}"
+
+
+def replay_key(run_id: str, topic: str) -> str:
+    """``qlap/<run-id>/replay/<topic>``: the queryable answering with a writer's recent
+    messages of one of :data:`REPLAY_TOPICS`."""
+    if topic not in REPLAY_TOPICS:
+        raise BusKeyError(f"topic {topic!r} has no replay log; those with one: "
+                          f"{', '.join(REPLAY_TOPICS)}")
+    return f"{ROOT}/{validate_run_id(run_id)}/{REPLAY}/{topic}"
 
 
 def alive_pattern(run_id: str) -> str:
@@ -128,8 +143,10 @@ token). The ACL of :func:`~.config.acl_own_keys` is built from this."""
 
 
 def actor_put_keys(actor: str, run_id: str = "*") -> list[str]:
-    """Key expressions ``actor`` may put on: its topics, ``stats`` and its liveliness token
-    (``run_id='*'``: in any run)."""
+    """Key expressions ``actor`` may put (or reply) on: its topics, the replay logs of its
+    lockstep topics, ``stats`` and its liveliness token (``run_id='*'``: in any run)."""
     run = run_id if run_id == "*" else validate_run_id(run_id)
-    own = [f"{ROOT}/{run}/{t}" for t in WRITERS.get(validate_actor(actor), ())]
-    return [*own, f"{ROOT}/{run}/stats", f"{ROOT}/{run}/{ALIVE}/{actor}"]
+    topics = WRITERS.get(validate_actor(actor), ())
+    own = [f"{ROOT}/{run}/{t}" for t in topics]
+    replay = [f"{ROOT}/{run}/{REPLAY}/{t}" for t in topics if t in REPLAY_TOPICS]
+    return [*own, *replay, f"{ROOT}/{run}/stats", f"{ROOT}/{run}/{ALIVE}/{actor}"]

@@ -3,16 +3,18 @@
 ``embedded`` opens one Zenoh session with no sockets and runs every actor as a trio task of one
 nursery. ``processes`` opens a Zenoh router in this process on a free loopback port and starts
 each actor in its own process (``spawn``), each with a client session to the router; a
-supervisor watches them and stops the run if one dies. In both, the run is in lockstep and the
-results are those of the synchronous loop with the same seed and parameters.
+supervisor (:mod:`.supervisor`) restarts an actor that dies from its latest snapshot and the run
+goes on. In both, the run is in lockstep and the results are those of the synchronous loop with
+the same seed and parameters.
 """
 
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
 import socket
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +24,7 @@ import zenoh
 from ..bus.bridge import AliveWatcher
 from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
+from .supervisor import Supervisor
 
 ACTORS = ("perception", "contingency", "landmarks", "executor", "world")
 """Every actor of a run; the world starts last (it waits for the others)."""
@@ -47,10 +50,13 @@ async def _wait_alive(session: Any, run_id: str, names: set[str], limit_s: float
 
 
 async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
-                             record: Path | None = None, extra: tuple = ()) -> dict[str, Any]:
+                             record: Path | None = None, extra: tuple = (),
+                             watchers: tuple = ()) -> dict[str, Any]:
     """Every actor in this process on one socket-less session (or listening on ``listen``);
     with ``record``, the recorder actor writes every message of the run to an MCAP file;
-    ``extra`` coroutines ``task(session, ctx)`` run beside the actors (tests, tools)."""
+    ``extra`` coroutines ``task(session, ctx)`` run beside the actors (tests, tools);
+    ``watchers`` coroutines ``task(session, ctx, stop)`` (e.g. the progress bar) run until
+    the actors are done and ``stop`` is set."""
     from ..bus.recorder import record as record_bus
 
     results: dict[str, Any] = {}
@@ -66,6 +72,8 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
         async with trio.open_nursery() as outer:
             if record is not None:
                 await outer.start(record_bus, session, ctx.run_id, record, stop)
+            for watcher in watchers:
+                outer.start_soon(watcher, session, ctx, stop)
             async with trio.open_nursery() as nursery:
                 for name in ACTORS:
                     nursery.start_soon(one, name)
@@ -95,12 +103,12 @@ async def _connected_actor(name: str, config: zenoh.Config, ctx: Any, watcher: A
     return result
 
 
-def run_embedded(ctx: Any, listen: tuple[str, ...] = (), record: Path | None = None
-                 ) -> dict[str, Any]:
+def run_embedded(ctx: Any, listen: tuple[str, ...] = (), record: Path | None = None,
+                 watchers: tuple = ()) -> dict[str, Any]:
     """:func:`run_embedded_async` under trio; Ctrl-C cancels every actor at its next
     checkpoint (sessions closed) and surfaces as a plain KeyboardInterrupt."""
     try:
-        return trio.run(run_embedded_async, ctx, listen, record,
+        return trio.run(run_embedded_async, ctx, listen, record, (), watchers,
                         restrict_keyboard_interrupt_to_checkpoints=True)
     except BaseExceptionGroup as group:
         if group.subgroup(KeyboardInterrupt) is not None:
@@ -144,9 +152,14 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) ->
     atomic_write_json(Path(result_path), result)
 
 
-def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05) -> dict[str, Any]:
-    """One process per actor around a router opened here (DESIGN.md §4, processes).
+def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, *,
+                  record: Path | None = None,
+                  on_poll: Callable[[Supervisor], None] | None = None) -> dict[str, Any]:
+    """One process per actor around a router opened here (DESIGN.md §4, processes); a dead
+    actor is restarted from its latest snapshot (:mod:`.supervisor`).
 
+    ``record``: the router's session records every message of the run to an MCAP file (in a
+    thread of this process). ``on_poll(supervisor)`` is called at every poll (tests, tools).
     Ctrl-C or SIGTERM stops every actor (SIGTERM to each, which closes its session) and
     raises KeyboardInterrupt here once they are gone.
     """
@@ -157,52 +170,79 @@ def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05) 
 
     previous = signal.signal(signal.SIGTERM, on_term)
     try:
-        return _run_processes(ctx, listen_port, poll)
+        return _run_processes(ctx, listen_port, poll, record, on_poll)
     finally:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _run_processes(ctx: Any, listen_port: int | None, poll: float) -> dict[str, Any]:
+def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path | None,
+                   on_poll: Callable[[Supervisor], None] | None) -> dict[str, Any]:
     import tempfile
 
     port = listen_port or free_port()
     ctx.extra.setdefault("placement", "processes")
     endpoint = f"tcp/127.0.0.1:{port}"
-    spawn = mp.get_context("spawn")
     t0 = time.perf_counter()
-    results: dict[str, Any] = {}
-    with zenoh.open(router_config([endpoint])), tempfile.TemporaryDirectory() as tmp:
-        procs = {}
-        for name in ACTORS:
-            path = str(Path(tmp) / f"{name}.json")
-            p = spawn.Process(target=_actor_process, name=f"qlap-{name}",
-                              args=(name, json.dumps(ctx.to_json()), endpoint, path))
-            p.start()
-            procs[name] = (p, path)
-        failed = None
+    with zenoh.open(router_config([endpoint])) as router, \
+            tempfile.TemporaryDirectory(prefix="qlap-run-") as tmp:
+        run_ctx = type(ctx).from_json(ctx.to_json())
+        run_ctx.extra.setdefault("snapshot_dir", str(Path(tmp) / "snapshots"))
+        recorder = _Recorder(router, ctx.run_id, record) if record is not None else None
+        sup = Supervisor(run_ctx, endpoint, Path(tmp), ACTORS, _actor_process)
         try:
-            while any(p.is_alive() for p, _ in procs.values()):
-                for name, (p, _) in procs.items():
-                    if not p.is_alive() and p.exitcode not in (0, None):
-                        failed = (name, p.exitcode)
-                if failed:
-                    break
+            sup.start_all()
+            while sup.check():
+                if on_poll is not None:
+                    on_poll(sup)
                 time.sleep(poll)
         finally:
-            for p, _ in procs.values():
-                if p.is_alive():
-                    p.terminate()
-                p.join(10)
-        if failed:
-            raise RuntimeError(f"actor {failed[0]} exited with code {failed[1]}; run stopped")
-        for name, (p, path) in procs.items():
-            if p.exitcode != 0:
-                raise RuntimeError(f"actor {name} exited with code {p.exitcode}")
-            results[name] = json.loads(Path(path).read_text())
-    return _finish(ctx, "processes", results, time.perf_counter() - t0)
+            sup.stop()
+            if recorder is not None:
+                recorder.stop()
+        results = sup.results()
+    return _finish(ctx, "processes", results, time.perf_counter() - t0, sup.report())
 
 
-def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float) -> dict[str, Any]:
+class _Recorder:
+    """The recorder (:func:`~qlap_runtime.bus.recorder.record`) on the router's session, in a
+    thread with its own trio run, so that the launcher's polling loop and its signal handling
+    stay as they are. Subscribed when the constructor returns."""
+
+    def __init__(self, session: Any, run_id: str, path: Path) -> None:
+        self.session, self.run_id, self.path = session, run_id, Path(path)
+        self.summary: Any = None
+        self._ready = threading.Event()
+        self._token: Any = None
+        self._stop: trio.Event | None = None
+        self._thread = threading.Thread(target=lambda: trio.run(self._main),
+                                        name="qlap-recorder", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(30):
+            raise RuntimeError("the recorder did not start")
+
+    async def _main(self) -> None:
+        from ..bus.recorder import record
+
+        self._token = trio.lowlevel.current_trio_token()
+        self._stop = trio.Event()
+
+        async def go(task_status=trio.TASK_STATUS_IGNORED) -> None:
+            self.summary = await record(self.session, self.run_id, self.path, self._stop,
+                                        task_status=task_status)
+
+        async with trio.open_nursery() as nursery:
+            await nursery.start(go)
+            self._ready.set()
+
+    def stop(self) -> None:
+        """Write what has arrived and finish the file."""
+        if self._stop is not None and self._thread.is_alive():
+            trio.from_thread.run_sync(self._stop.set, trio_token=self._token)
+        self._thread.join(30)
+
+
+def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float,
+            restarts: dict[str, Any] | None = None) -> dict[str, Any]:
     clock = ctx.extra.get("clock", "lockstep")
     summary: dict[str, Any] = {"placement": placement, "clock": clock,
                                "world": ctx.world, "seed": ctx.seed, "steps": ctx.steps,
@@ -212,7 +252,8 @@ def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float) -> d
                                "waits": sum(r.get("waits", 0) for r in results.values()),
                                "rejected_messages": sum(r.get("rejected", 0)
                                                         for r in results.values()),
-                               "restarts": 0}
+                               "restarts": 0, "restarted": []}
+    summary.update(restarts or {})
     world = results.get("world", {})
     for key in ("hz", "late_ticks", "missed_ticks", "lateness_p50_ms", "lateness_p99_ms",
                 "lateness_max_ms"):

@@ -1,0 +1,129 @@
+"""Replay logs: a writer's recent lockstep messages, for a consumer restarted from a snapshot.
+
+A consumer restarted by the supervisor resumes from the step of its snapshot, so it needs the
+messages of its input topics published since then, which it missed while it was dead. Their
+writer keeps them in a :class:`ReplayLog` — a bounded log of ``(step, message)`` answering Zenoh
+queries on ``qlap/<run-id>/replay/<topic>?from=STEP`` — and :func:`fetch_replay` gets them
+(docs/runtime.md, Faults; docs/bus.md).
+
+Messages are frozen dataclasses whose fields the writers never mutate after publishing, so the
+log keeps the message objects and encodes them only when queried: the step chain pays a deque
+append, not a second encoding. The query callback (a Zenoh thread) reads a copy taken under a
+lock and never touches actor state.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import trio
+import zenoh
+
+from . import keys
+from .bridge import RejectionCounter, TrioInbox
+from .schema import Message, encode
+
+log = logging.getLogger("qlap.bus")
+
+
+class ReplayLog:
+    """The last ``keep`` steps of one topic written by this actor, served to queries.
+
+    ``append(step, msg)`` after publishing ``msg``; entries whose step is more than ``keep``
+    below the newest are dropped. A query ``...?from=S`` gets the entries with step >= S in
+    append order (all of them without ``from``).
+    """
+
+    def __init__(self, session: zenoh.Session, run_id: str, topic: str, keep: int) -> None:
+        self.key = keys.replay_key(run_id, topic)
+        self.keep = int(keep)
+        self._lock = threading.Lock()
+        self._entries: deque[tuple[int, Message]] = deque()
+        self._q = session.declare_queryable(self.key, self._on_query)
+
+    def append(self, step: int, msg: Message) -> None:
+        with self._lock:
+            self._entries.append((int(step), msg))
+            horizon = int(step) - self.keep
+            while self._entries and self._entries[0][0] < horizon:
+                self._entries.popleft()
+
+    def entries(self, from_step: int | None = None) -> list[tuple[int, Message]]:
+        """The logged ``(step, message)`` pairs with step >= ``from_step``."""
+        with self._lock:
+            items = list(self._entries)
+        return items if from_step is None else [e for e in items if e[0] >= from_step]
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        try:
+            raw = query.parameters.get("from")
+            from_step = int(raw) if raw not in (None, "") else None
+        except (TypeError, ValueError):
+            from_step = None                        # a malformed parameter: answer with all
+        try:
+            for _, msg in self.entries(from_step):
+                query.reply(self.key, encode(msg), encoding=zenoh.Encoding.APPLICATION_JSON)
+        except Exception:
+            log.exception("replay query on %s failed", self.key)
+
+    def close(self) -> None:
+        try:
+            self._q.undeclare()
+        except zenoh.ZError:  # pragma: no cover
+            pass
+
+    def __enter__(self) -> ReplayLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+_DONE: Any = object()
+
+
+async def fetch_replay(session: zenoh.Session, run_id: str, topic: str, from_step: int = 0, *,
+                       counter: RejectionCounter | None = None,
+                       query_timeout: float = 10.0
+                       ) -> list[Message]:
+    """Every message the writers of ``topic`` logged with step >= ``from_step``, decoded as
+    messages of ``topic`` (``topic`` may end in ``*``, e.g. ``delta/*``). Invalid replies are
+    counted in ``counter``; an unanswered query gives ``[]``."""
+    counter = counter if counter is not None else RejectionCounter()
+    run = keys.validate_run_id(run_id)
+    prefix = f"{keys.ROOT}/{run}/{keys.REPLAY}/"
+    inbox: TrioInbox[Any] = TrioInbox()
+
+    def on_reply(reply: zenoh.Reply) -> None:
+        try:
+            ok = reply.ok
+            if ok is not None:
+                inbox.push((str(ok.key_expr), ok.payload.to_bytes()))
+        except Exception:
+            log.exception("replay reply callback failed")
+
+    session.get(f"{prefix}{topic}?from={int(from_step)}",
+                zenoh.handlers.Callback(on_reply, lambda: inbox.push(_DONE)),
+                target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=query_timeout)
+    out: list[Message] = []
+    t0 = time.monotonic()
+    with trio.move_on_after(query_timeout + 1.0):
+        while True:
+            for item in await inbox.get_batch():
+                if item is _DONE:
+                    log.debug("replay of %s from %d: %d messages in %.3f s", topic, from_step,
+                              len(out), time.monotonic() - t0)
+                    return out
+                k, payload = item
+                if not k.startswith(prefix):
+                    counter.reject(k, "reply outside the replay keys")
+                    continue
+                msg = counter.decode(f"{keys.ROOT}/{run}/{k[len(prefix):]}", payload)
+                if msg is not None:
+                    out.append(msg)
+    return out

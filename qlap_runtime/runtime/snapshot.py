@@ -1,0 +1,140 @@
+"""Actor snapshots: what a restarted actor resumes from (docs/runtime.md, Faults).
+
+An actor of the processes placement writes, every ``snapshot_every`` steps, its whole state at
+the boundary of a step s into ``<snapshot dir>/<actor>/step-<s>/``:
+
+- the algorithm's state with the checkpoint code (JSON + npz, no pickle, ``docs/checkpoint.md``):
+  ``learner.{json,npz}`` for contingency and landmarks, the agent's files for the executor,
+  ``perception.{json,npz}`` (its quantity spaces and previous values) for perception;
+- ``actor.json``: the step s, the actor's :class:`~.lockstep.DeltaBook` (deltas received but not
+  yet applied, skipped steps, the last step handed out) and small actor-specific values.
+
+The directory is written under a temporary name and renamed, then ``<actor>/latest.json`` is
+replaced atomically to point at it, and older snapshots are removed: a crash at any point leaves
+the previous snapshot intact and readable. Because lockstep makes each actor's state a function
+of its input stream, the state at s plus the inputs after s give back exactly the state of an
+actor that never died.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..qlap.checkpoint import CheckpointError, atomic_write_bytes, atomic_write_json
+from ..qlap.delta import Delta
+from ..qlap.perception import Perception
+from ..qlap.quantity import QuantitySpace
+from .lockstep import DeltaBook
+
+FORMAT = "qlap-actor-snapshot"
+VERSION = 1
+DEFAULT_EVERY = 1000
+"""Steps between two snapshots of an actor unless ``ctx.extra["snapshot_every"]`` says."""
+
+
+def book_state(book: DeltaBook) -> dict[str, Any]:
+    """A :class:`DeltaBook` as JSON: the schedule position and the deltas not yet applied."""
+    return {"last": book.last, "skipped": sorted(book.skipped),
+            "applied_versions": book.applied_versions, "waits": book.waits,
+            "received": [[kind, d.to_json()] for (_, kind), d in sorted(book.received.items())]}
+
+
+def restore_book(book: DeltaBook, state: dict[str, Any]) -> None:
+    book.last = int(state["last"])
+    book.skipped = {int(s) for s in state["skipped"]}
+    book.applied_versions = int(state["applied_versions"])
+    book.waits = int(state["waits"])
+    book.received = {}
+    for kind, d in state["received"]:
+        book.add(str(kind), Delta.from_json(d))
+
+
+def save_perception(per: Perception, directory: Path, name: str = "perception") -> None:
+    """The perception actor's state: quantity spaces (its landmarks), previous values and the
+    bounded history (``perceive`` reads the previous values; the history is small)."""
+    meta = {"spaces": [s.to_json() for s in per.spaces], "hist_len": per.hist_len,
+            "hist_head": per.hist_head, "steps_seen": per.steps_seen,
+            "all_seen": per._all_seen}
+    arrays = {"prev_x": per.prev_x, "prev_q": per.prev_q, "hist_x": per.hist_x,
+              "hist_q": per.hist_q}
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    atomic_write_bytes(directory / f"{name}.npz", buf.getvalue())
+    atomic_write_json(directory / f"{name}.json", meta)
+
+
+def load_perception(per: Perception, directory: Path, name: str = "perception") -> None:
+    """Restore :func:`save_perception`'s state into ``per`` (built for the same world)."""
+    try:
+        meta = json.loads((directory / f"{name}.json").read_text())
+        with np.load(directory / f"{name}.npz", allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        per.spaces = [QuantitySpace.from_json(s) for s in meta["spaces"]]
+        per._rebuild()
+        per.prev_x = arrays["prev_x"].astype(float)
+        per.prev_q = arrays["prev_q"].astype(np.int64)
+        per.hist_x = arrays["hist_x"].astype(float)
+        per.hist_q = arrays["hist_q"].astype(np.int16)
+        per.hist_len, per.hist_head = int(meta["hist_len"]), int(meta["hist_head"])
+        per.steps_seen, per._all_seen = int(meta["steps_seen"]), bool(meta["all_seen"])
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+        raise CheckpointError(f"{directory}: unreadable perception snapshot "
+                              f"({type(exc).__name__}: {exc})") from None
+
+
+def write_snapshot(root: Path, actor: str, step: int, state: dict[str, Any],
+                   save: Callable[[Path], Any] | None = None) -> Path:
+    """Write ``<root>/<actor>/step-<step>/`` (``save(dir)`` writes the algorithm's files, then
+    ``actor.json`` holds ``state``), point ``latest.json`` at it, remove older ones."""
+    base = Path(root) / actor
+    final = base / f"step-{step:09d}"
+    tmp = base / f".step-{step:09d}.{os.getpid()}.tmp"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    if save is not None:
+        save(tmp)
+    atomic_write_json(tmp / "actor.json", {"format": FORMAT, "version": VERSION,
+                                           "actor": actor, "step": int(step), "state": state})
+    if final.exists():          # written before a restart: the same state (determinism)
+        shutil.rmtree(tmp)
+    else:
+        os.replace(tmp, final)
+    atomic_write_json(base / "latest.json", {"step": int(step), "path": final.name})
+    for old in base.iterdir():
+        if old.is_dir() and old.name != final.name and not old.name.endswith(".tmp"):
+            shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def latest_snapshot(root: Path, actor: str) -> tuple[int, Path] | None:
+    """(step, directory) of the actor's latest complete snapshot, or None."""
+    base = Path(root) / actor
+    try:
+        meta = json.loads((base / "latest.json").read_text())
+        path = base / str(meta["path"])
+        step = int(meta["step"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return (step, path) if (path / "actor.json").exists() else None
+
+
+def read_snapshot(path: Path, actor: str) -> tuple[int, dict[str, Any]]:
+    """(step, actor state) of a snapshot directory; :class:`CheckpointError` if unusable."""
+    jpath = Path(path) / "actor.json"
+    try:
+        meta = json.loads(jpath.read_text())
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"{jpath}: unreadable snapshot ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT \
+            or meta.get("version") != VERSION or meta.get("actor") != actor:
+        raise CheckpointError(f"{jpath}: not a {FORMAT} v{VERSION} snapshot of {actor}")
+    return int(meta["step"]), dict(meta["state"])

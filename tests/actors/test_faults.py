@@ -1,0 +1,94 @@
+"""Faults (DESIGN.md §4, processes): an actor process SIGKILLed mid-run is restarted from its
+latest snapshot by the supervisor and the run goes on, to the very knowledge of a run without
+the fault."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import time
+
+import pytest
+
+from qlap_runtime.bus.recorder import read_mcap
+from qlap_runtime.runtime.launcher import run_processes
+from qlap_runtime.runtime.snapshot import latest_snapshot
+from qlap_runtime.runtime.supervisor import Supervisor
+
+from .test_lockstep import BASE, STEPS, context, sync_knowledge
+
+SNAPSHOT_EVERY = 500
+
+
+class Killer:
+    """Called at every supervisor poll: SIGKILLs ``victim`` once its snapshot at or after
+    ``after`` exists, i.e. mid-run with something to resume from."""
+
+    def __init__(self, victim: str, after: int) -> None:
+        self.victim, self.after = victim, after
+        self.killed_at: float | None = None
+        self.snapshot_step: int | None = None
+        self.pid: int | None = None
+
+    def __call__(self, sup: Supervisor) -> None:
+        if self.killed_at is not None or sup.snapshot_dir is None:
+            return
+        latest = latest_snapshot(sup.snapshot_dir, self.victim)
+        if latest is None or latest[0] < self.after:
+            return
+        p = sup.procs[self.victim]
+        self.pid, self.snapshot_step = p.pid, latest[0]
+        os.kill(p.pid, signal.SIGKILL)
+        self.killed_at = time.monotonic()
+
+
+@pytest.mark.parametrize("victim", ["perception", "contingency", "landmarks", "executor"])
+def test_a_killed_actor_is_restarted_and_the_run_ends_as_if_nothing_happened(
+        tmp_path, caplog, victim):
+    params = BASE.replace(batch_lag=200)
+    expected = sync_knowledge("core2d", params, seed=7)
+    ctx = context(tmp_path, "core2d", params, 7, f"t-fault-{victim}")
+    ctx.extra["snapshot_every"] = SNAPSHOT_EVERY
+    killer = Killer(victim, after=2 * SNAPSHOT_EVERY - 1)
+    mcap = tmp_path / "run.mcap"
+    t0 = time.monotonic()
+    with caplog.at_level(logging.WARNING, logger="qlap.supervisor"):
+        summary = run_processes(ctx, record=mcap, on_poll=killer)
+    wall = time.monotonic() - t0
+
+    assert killer.killed_at is not None, "the run ended before the victim was killed"
+    assert summary["restarts"] == 1
+    assert summary["restarted"] == [{"actor": victim, "attempt": 1, "exit_code": -9,
+                                     "from_step": killer.snapshot_step}]
+    assert f"restarting {victim} from snapshot at step {killer.snapshot_step} (attempt 1)" \
+        in caplog.text
+    assert summary["actors"][victim]["resumed_from_step"] == killer.snapshot_step
+    assert summary["steps"] == STEPS
+
+    senses = [msg.step for topic, msg, _ in read_mcap(mcap) if topic.endswith("/sense")]
+    assert sorted(senses) == list(range(STEPS)), "every sense step exactly once"
+
+    got = (tmp_path / "knowledge.json").read_text()
+    assert json.loads(got)["dbns"], "nothing was learned: the comparison would be empty"
+    assert got == expected, "the restarted run learned something else than the unkilled one"
+    print(f"{victim}: killed after its snapshot at step {killer.snapshot_step}; "
+          f"run of {STEPS} steps in {wall:.1f} s")
+
+
+def test_a_dead_world_stops_the_run_with_a_clear_error(tmp_path):
+    params = BASE.replace(batch_lag=200)
+    ctx = context(tmp_path, "core2d", params, 7, "t-fault-world")
+    ctx.extra["snapshot_every"] = SNAPSHOT_EVERY
+
+    def kill_world(sup: Supervisor) -> None:
+        under_way = latest_snapshot(sup.snapshot_dir, "executor") is not None
+        if under_way and sup.procs["world"].is_alive():
+            os.kill(sup.procs["world"].pid, signal.SIGKILL)
+
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="the world actor cannot be restarted"):
+        run_processes(ctx, on_poll=kill_world)
+    assert time.monotonic() - t0 < 60
+    assert not (tmp_path / "summary.json").exists()
