@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from pathlib import Path
+
+DEFAULT_ACTOR_LAG = 500
+"""Default batch lag L of the actor placements (DESIGN.md §4: batches pipelined, the step chain
+never waits for them); the synchronous loop defaults to L = 0, Algorithm 2 to the letter."""
 
 
 def _positive(text: str) -> int:
@@ -42,11 +47,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--headless", action="store_true",
                      help="no terminal UI: a progress bar and a final summary (the default "
                           "when stdout is not a terminal)")
-    run.add_argument("--placement", choices=("sync", "embedded", "processes"), default="sync",
-                     help="sync: the synchronous reference loop (Algorithm 2) in this process "
-                          "(default, fastest); embedded: the actors on one socket-less Zenoh "
-                          "session; processes: one process per actor around a router "
-                          "(docs/runtime.md). The results are identical")
+    run.add_argument("--placement", choices=("embedded", "processes", "sync"), default=None,
+                     help="embedded (default): the actors of docs/runtime.md as trio tasks on "
+                          "one socket-less Zenoh session; processes: one process per actor "
+                          "around a router; sync: the synchronous reference loop (Algorithm 2) "
+                          "without a bus, fastest. Same seed and lag give identical knowledge. "
+                          "In a terminal without --headless, `qlap run` opens the terminal UI "
+                          "on its own agent process unless a placement is given")
     run.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
                      help="lockstep: the world waits for the executor and due deltas "
                           "(deterministic); realtime: the world ticks at --hz, deltas apply "
@@ -61,8 +68,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
                      help="record every bus message of the run to an MCAP file "
                           "(embedded placement)")
-    run.add_argument("--lag", type=int, default=0,
-                     help="batch lag L in steps (DESIGN.md §4; 0 = Algorithm 2)")
+    run.add_argument("--lag", type=int, default=None,
+                     help="batch lag L in steps (DESIGN.md §4): a batch computed from the data "
+                          "up to t is applied at t + L while the step chain runs on; 0 = "
+                          "Algorithm 2 to the letter (default: 500 for embedded and processes, "
+                          "0 for sync)")
     run.add_argument("--babble-steps", type=int, default=None,
                      help="length of the initial motor-babbling period (default: 20000, §6.1)")
     run.add_argument("--resume", type=Path, default=None,
@@ -198,6 +208,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     world = _make_world(args.world, "run")
     if world is None:
         return 2
+    interactive = sys.stdout.isatty() and not args.headless
+    tui = interactive and args.placement is None and args.resume is None
+    args.placement = args.placement or "embedded"
+    if args.lag is None:
+        args.lag = 0 if args.placement == "sync" or tui else DEFAULT_ACTOR_LAG
     try:
         changes = {"batch_lag": args.lag}
         if args.babble_steps is not None:
@@ -205,9 +220,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         params = Params(**changes)
     except ValueError as exc:
         print(f"qlap run: {exc}", file=sys.stderr)
+        world.close()
         return 2
-    interactive = sys.stdout.isatty() and not args.headless
-    if interactive and args.placement == "sync" and args.resume is None:
+    if tui:
+        world.close()
         return _run_tui(args)
     if args.clock == "realtime" and args.placement == "sync":
         print("qlap run: --clock realtime needs --placement embedded or processes",
@@ -317,24 +333,32 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     if not args.hz > 0:
         print(f"qlap run: --hz must be positive, got {args.hz}", file=sys.stderr)
         return 2
-    ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=args.out,
-                     extra={"clock": args.clock, "hz": args.hz})
-    print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
-          f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
-    if args.placement == "embedded":
-        summary = run_embedded(ctx, tuple(args.listen), record=args.record)
-    else:
-        summary = run_processes(ctx)
-    print(f"{summary['steps']} steps in {summary['wall_time_s']} s "
-          f"({summary['steps_per_s']} steps/s); waits {summary['waits']}, rejected messages "
-          f"{summary['rejected_messages']}")
+    with tempfile.TemporaryDirectory(prefix="qlap-run-") as tmp:
+        out = args.out if args.out is not None else Path(tmp)   # knowledge.json to print
+        ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=out,
+                         extra={"clock": args.clock, "hz": args.hz})
+        print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
+              f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
+        if args.placement == "embedded":
+            from .runtime.progress import watch_progress
+
+            summary = run_embedded(ctx, tuple(args.listen), record=args.record,
+                                   watchers=() if args.quiet else (watch_progress,))
+        else:
+            summary = run_processes(ctx)
+        knowledge = json.loads((out / "knowledge.json").read_text())
+    print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
+          f"({summary['steps_per_s']} steps/s); k = {summary.get('k')}, "
+          f"{summary.get('dbns')} DBNs, {summary.get('plans')} plans, "
+          f"{summary.get('landmarks')} landmarks, {summary.get('reliable_actions')} "
+          f"sufficiently reliable actions; waits {summary['waits']}, rejected messages "
+          f"{summary['rejected_messages']}, restarts {summary.get('restarts', 0)}")
     if args.clock == "realtime":
         print(f"realtime {summary.get('hz')} Hz: late ticks {summary.get('late_ticks')}, "
               f"missed ticks {summary.get('missed_ticks')}, lateness p50 "
               f"{summary.get('lateness_p50_ms')} ms, p99 {summary.get('lateness_p99_ms')} ms")
+    print(format_knowledge(knowledge, limit=25))
     if args.out is not None:
-        knowledge = json.loads((args.out / "knowledge.json").read_text())
-        print(format_knowledge(knowledge, limit=25))
         print(f"\nwrote {args.out}/knowledge.json, summary.json, checkpoints/")
     return 0
 

@@ -17,6 +17,7 @@ def test_run_headless_writes_knowledge_summary_and_checkpoint(tmp_path):
     assert r.returncode == 0, r.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == 10000
+    assert summary["placement"] == "embedded"          # the default placement
     assert summary["steps_per_s"] > 0
     knowledge = json.loads((out / "knowledge.json").read_text())
     assert knowledge["step"] == 9999
@@ -35,9 +36,12 @@ def test_bad_world_and_bad_flags_give_clear_errors():
     r = qlap("run", "--lag", "5000", "--steps", "10")
     assert r.returncode == 2
     assert "batch_lag" in r.stderr
-    r = qlap("run", "--headless", "--steps", "10", "--record", "x.mcap")
+    r = qlap("run", "--headless", "--placement", "sync", "--steps", "10", "--record", "x.mcap")
     assert r.returncode == 2
     assert "--placement embedded" in r.stderr
+    r = qlap("run", "--placement", "nowhere")
+    assert r.returncode == 2
+    assert "nowhere" in r.stderr
 
 
 def test_show_and_eval_on_a_run(tmp_path):
