@@ -16,6 +16,7 @@ import numpy as np
 
 from .params import Params
 from .probability import best_reliability, dbn_entropy, prob_above
+from .ring import ring_push, ring_rows
 from .variables import Event
 
 CHANGE = "change"
@@ -77,11 +78,8 @@ class DBN:
     # -- activations --------------------------------------------------------------------------
     def record(self, x: np.ndarray, success: bool, cell: int) -> None:
         """Store a resolved activation and count it in the CPT cell ``cell``."""
-        cap = self.act_x.shape[0]
-        self.act_x[self.act_head] = x
-        self.act_ok[self.act_head] = success
-        self.act_head = (self.act_head + 1) % cap
-        self.act_n = min(self.act_n + 1, cap)
+        self.act_head, self.act_n = ring_push(self.act_x, self.act_ok, self.act_head,
+                                              self.act_n, x, success)
         self.total += 1
         if cell >= 0:
             if success:
@@ -91,11 +89,7 @@ class DBN:
 
     def stored(self) -> tuple[np.ndarray, np.ndarray]:
         """Stored activations (oldest first): real states and success labels."""
-        cap = self.act_x.shape[0]
-        if self.act_n < cap:
-            return self.act_x[: self.act_n], self.act_ok[: self.act_n]
-        order = np.r_[self.act_head:cap, 0:self.act_head]
-        return self.act_x[order], self.act_ok[order]
+        return ring_rows(self.act_x, self.act_ok, self.act_head, self.act_n)
 
     def label(self, names: list[str], value_label) -> str:
         """The reference's notation, e.g. ⟨{h_x}: u_x→(300, +inf) ⇒ h_x.dot→+⟩."""

@@ -27,6 +27,7 @@ from .mdp import (
     value_iteration,
 )
 from .params import Params
+from .ring import ring_push, ring_rows
 from .variables import Event, Kind, VariableTable
 
 RelAction = Callable[[int, int], float]
@@ -139,11 +140,8 @@ class Plan:
 
     # -- second-order statistics (§5.4) ------------------------------------------------------
     def record_call(self, x: np.ndarray, success: bool, cell: int) -> None:
-        cap = self.call_x.shape[0]
-        self.call_x[self.call_head] = x
-        self.call_ok[self.call_head] = success
-        self.call_head = (self.call_head + 1) % cap
-        self.call_n = min(self.call_n + 1, cap)
+        self.call_head, self.call_n = ring_push(self.call_x, self.call_ok, self.call_head,
+                                                self.call_n, x, success)
         self.calls += 1
         self.successes += int(success)
         if 0 <= cell < len(self.cpt_s):
@@ -153,11 +151,7 @@ class Plan:
                 self.cpt_f[cell] += 1
 
     def stored_calls(self) -> tuple[np.ndarray, np.ndarray]:
-        cap = self.call_x.shape[0]
-        if self.call_n < cap:
-            return self.call_x[: self.call_n], self.call_ok[: self.call_n]
-        order = np.r_[self.call_head:cap, 0:self.call_head]
-        return self.call_x[order], self.call_ok[order]
+        return ring_rows(self.call_x, self.call_ok, self.call_head, self.call_n)
 
     @property
     def failures(self) -> int:
