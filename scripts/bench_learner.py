@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -24,25 +23,15 @@ from qlap_runtime.qlap import ModelLearner, Params, VariableTable
 from qlap_runtime.qlap.babble import Babbler
 from qlap_runtime.qlap.dbn import CHANGE
 from qlap_runtime.qlap.variables import Event
-
-
-@dataclass(frozen=True)
-class Spec:
-    name: str
-    kind: str
-    low: float | None = None
-    high: float | None = None
-    values: tuple[str, ...] = ()
-    available_from: int = 0
-
+from worlds import VariableSpec, VarKind
 
 MOTORS = ("u_x", "u_y", "u_z", "u_UG")
 MAGS = ("h_x", "h_y", "h_z", "y_TB", "y_BT", "x_RL", "x_LR", "z_BT", "z_F", "T_L", "T_R",
         "T_T", "c_x", "c_y", *(f"m_{i}" for i in range(14)))
-SPECS = [*(Spec(m, "motor", -1000.0, 1000.0) for m in MOTORS),
-         *(Spec(m, "magnitude") for m in MAGS),
-         Spec("T", "nominal", values=("false", "true")),
-         Spec("bang", "nominal", values=("false", "true"))]
+SPECS = [*(VariableSpec(m, VarKind.MOTOR, "a force motor", -1000.0, 1000.0) for m in MOTORS),
+         *(VariableSpec(m, VarKind.MAGNITUDE, "a magnitude") for m in MAGS),
+         VariableSpec("T", VarKind.NOMINAL, "grasped", values=("false", "true")),
+         VariableSpec("bang", VarKind.NOMINAL, "hit the floor", values=("false", "true"))]
 
 
 class SyntheticCore:
