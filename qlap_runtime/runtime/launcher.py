@@ -214,11 +214,18 @@ class _Recorder:
         self._ready = threading.Event()
         self._token: Any = None
         self._stop: trio.Event | None = None
-        self._thread = threading.Thread(target=lambda: trio.run(self._main),
-                                        name="qlap-recorder", daemon=True)
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="qlap-recorder", daemon=True)
         self._thread.start()
-        if not self._ready.wait(30):
-            raise RuntimeError("the recorder did not start")
+        if not self._ready.wait(30) or self.error is not None:
+            raise RuntimeError(f"the recorder did not start: {self.error!r}")
+
+    def _run(self) -> None:
+        try:
+            trio.run(self._main)
+        except BaseException as exc:       # e.g. the MCAP file cannot be opened
+            self.error = exc
+            self._ready.set()
 
     async def _main(self) -> None:
         from ..bus.recorder import record
@@ -237,7 +244,10 @@ class _Recorder:
     def stop(self) -> None:
         """Write what has arrived and finish the file."""
         if self._stop is not None and self._thread.is_alive():
-            trio.from_thread.run_sync(self._stop.set, trio_token=self._token)
+            try:
+                trio.from_thread.run_sync(self._stop.set, trio_token=self._token)
+            except trio.RunFinishedError:
+                pass
         self._thread.join(30)
 
 
