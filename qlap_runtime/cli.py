@@ -67,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "(embedded placement and the terminal UI)")
     run.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
                      help="record every bus message of the run to an MCAP file "
-                          "(embedded placement)")
+                          "(embedded and processes placements)")
     run.add_argument("--lag", type=int, default=None,
                      help="batch lag L in steps (DESIGN.md §4): a batch computed from the data "
                           "up to t is applied at t + L while the step chain runs on; 0 = "
@@ -326,9 +326,10 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     if args.resume is not None:
         print("qlap run: --resume is supported with --placement sync only", file=sys.stderr)
         return 2
-    if args.placement == "processes" and (args.record or args.listen):
-        print("qlap run: --record/--listen go with --placement embedded; with processes, "
-              "attach `qlap record --connect` to the router", file=sys.stderr)
+    if args.placement == "processes" and args.listen:
+        print("qlap run: --listen goes with --placement embedded; with processes, outside "
+              "subscribers connect to the router's endpoint, printed at the start",
+              file=sys.stderr)
         return 2
     if not args.hz > 0:
         print(f"qlap run: --hz must be positive, got {args.hz}", file=sys.stderr)
@@ -345,7 +346,12 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
             summary = run_embedded(ctx, tuple(args.listen), record=args.record,
                                    watchers=() if args.quiet else (watch_progress,))
         else:
-            summary = run_processes(ctx)
+            from .runtime.launcher import free_port
+
+            port = free_port()
+            print(f"router on tcp/127.0.0.1:{port} (qlap tui/record/echo --connect "
+                  f"tcp/127.0.0.1:{port})", file=sys.stderr)
+            summary = run_processes(ctx, port, record=args.record)
         knowledge = json.loads((out / "knowledge.json").read_text())
     print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
           f"({summary['steps_per_s']} steps/s); k = {summary.get('k')}, "
