@@ -26,10 +26,14 @@ def main() -> None:
                     help="ticks (default 4500: DBN batches at 2000, 4000 and a landmark batch "
                          "at 4000)")
     ap.add_argument("--hz", type=float, default=100.0)
+    ap.add_argument("--placement", action="append", choices=("embedded", "processes"),
+                    help="only this placement (repeatable; default: both)")
     args = ap.parse_args()
     params = Params()
     print(f"{args.world}, {args.steps} ticks at {args.hz:g} Hz, realtime clock:")
-    for name, fn in (("embedded", run_embedded), ("processes", run_processes)):
+    placements = {"embedded": run_embedded, "processes": run_processes}
+    for name in args.placement or list(placements):
+        fn = placements[name]
         ctx = RunContext(f"rt-{name}", args.world, args.steps, 0, params,
                          extra={"clock": "realtime", "hz": args.hz})
         s = fn(ctx)

@@ -265,6 +265,10 @@ def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float,
                                "restarts": 0, "restarted": []}
     summary.update(restarts or {})
     world = results.get("world", {})
+    if world.get("loop_s"):
+        # Start-up excluded (spawning, imports, sessions): the rate of the step chain itself.
+        summary["loop_s"] = world["loop_s"]
+        summary["loop_steps_per_s"] = round(world.get("steps", ctx.steps) / world["loop_s"], 1)
     for key in ("hz", "late_ticks", "missed_ticks", "lateness_p50_ms", "lateness_p99_ms",
                 "lateness_max_ms"):
         if key in world:
