@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Awaitable, Callable
+from collections import deque
+from collections.abc import Awaitable, Callable, Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,7 +17,7 @@ import trio
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import RejectionCounter, TrioSubscriber
 from qlap_runtime.bus.replay import fetch_replay
-from qlap_runtime.bus.schema import DeltaMsg, QState
+from qlap_runtime.bus.schema import Control, DeltaMsg, QState
 from qlap_runtime.qlap.params import Params
 from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.variables import Event, VariableTable
@@ -108,11 +110,15 @@ class StepInbox:
     """
 
     def __init__(self, sub: TrioSubscriber, first: int = 0,
-                 refill: Callable[[int], Awaitable[list]] | None = None) -> None:
+                 refill: Callable[[int], Awaitable[list]] | None = None,
+                 end: Controls | None = None) -> None:
         self.sub = sub
         self.buf: dict[int, Any] = {}
         self.next = first
         self.refill = refill
+        self.end = end
+        """The run's controls: :meth:`get` raises :class:`RunEnded` for a step after the last
+        one the world announced (``quit``)."""
         self.duplicates = 0
         """Messages dropped because their step was already consumed."""
 
@@ -124,15 +130,20 @@ class StepInbox:
 
     async def get(self, step: int) -> Any:
         while step not in self.buf:
-            if self.refill is None:
-                batch = await self.sub.receive_batch()
-            else:
-                batch = []
-                with trio.move_on_after(REFILL_AFTER_S):
+            end = self.end
+            if end is not None and end.ended(step):
+                raise RunEnded(end.last_step)       # type: ignore[arg-type]
+            batch: list = []
+            with end.interruptible() if end is not None else nullcontext():
+                if self.refill is None:
                     batch = await self.sub.receive_batch()
-                if not batch and any(k > step for k in self.buf):
-                    for msg in await self.refill(step):
-                        self.add(msg)
+                else:
+                    with trio.move_on_after(REFILL_AFTER_S):
+                        batch = await self.sub.receive_batch()
+            if self.refill is not None and not batch and not (end and end.ended(step)) \
+                    and any(k > step for k in self.buf):
+                for msg in await self.refill(step):
+                    self.add(msg)
             for r in batch:
                 self.add(r.msg)
         self.next = max(self.next, step + 1)
@@ -146,6 +157,184 @@ class StepInbox:
         for msg in msgs:
             self.add(msg)
         return len(msgs)
+
+
+class RunEnded(Exception):
+    """The world ended the run early (``quit``): there is no step after :attr:`last_step`."""
+
+    def __init__(self, last_step: int) -> None:
+        super().__init__(f"the run ended after step {last_step}")
+        self.last_step = last_step
+
+
+class ControlError(ValueError):
+    """A control command whose arguments are malformed (counted as a rejected message)."""
+
+
+class Controls:
+    """The run's ``control`` topic (``qlap/<run>/control``), delivered on the actor's trio loop.
+
+    The Zenoh callback only schedules :meth:`_deliver` with ``run_sync_soon`` (thread-safe, in
+    arrival order); decoding happens there, on the trio thread, where a malformed message is
+    counted by the actor's :class:`RejectionCounter` and dropped. Controls of another run never
+    arrive: the key carries the run id. Create inside trio.
+
+    - ``pending`` / :meth:`take` / :meth:`wait`: the commands, for the actors that obey them
+      (world, executor); ``keep=False`` keeps none (the other actors only need the end).
+    - The world's end marker, ``quit {"last_step": T}``, sets :attr:`last_step` and interrupts
+      every :meth:`interruptible` wait (a :class:`StepInbox` waiting for a step after T), so
+      that every actor finishes its loop after step T and writes its outputs.
+    """
+
+    def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter,
+                 keep: bool = True) -> None:
+        self.key = keys.key(ctx.run_id, "control")
+        self.counter = counter
+        self.keep = keep
+        self.pending: deque[Control] = deque()
+        self.last_step: int | None = None
+        self.received = 0
+        self._event = trio.Event()
+        self._scopes: set[trio.CancelScope] = set()
+        self._token = trio.lowlevel.current_trio_token()
+        self._sub = session.declare_subscriber(self.key, self._on_sample)
+
+    def _on_sample(self, sample: Any) -> None:
+        # A Zenoh thread (or the putting thread, same session): no actor state here.
+        try:
+            self._token.run_sync_soon(self._deliver, str(sample.key_expr),
+                                      sample.payload.to_bytes())
+        except trio.RunFinishedError:
+            pass                                    # the actor's trio run is over
+        except Exception:                           # pragma: no cover - never into Zenoh
+            log.exception("control callback failed on %s", self.key)
+
+    def _deliver(self, key_expr: str, payload: bytes) -> None:
+        self.received += 1
+        msg = self.counter.decode(key_expr, payload)
+        if not isinstance(msg, Control):
+            return
+        if msg.command == "quit" and "last_step" in msg.args:
+            last = msg.args["last_step"]
+            if type(last) is not int:
+                self.counter.reject(key_expr, f"quit: last_step must be an integer, got "
+                                              f"{last!r}")
+                return
+            self.last_step = last if self.last_step is None else min(self.last_step, last)
+            for scope in list(self._scopes):
+                scope.cancel()
+        if self.keep:
+            self.pending.append(msg)
+        self._event.set()
+        self._event = trio.Event()
+
+    def take(self) -> list[Control]:
+        """The commands received since the last call, oldest first."""
+        out = list(self.pending)
+        self.pending.clear()
+        return out
+
+    async def wait(self) -> None:
+        """Return when a command is pending (at once if one already is)."""
+        if not self.pending:
+            await self._event.wait()
+
+    def ended(self, step: int) -> bool:
+        """True when ``step`` lies after the run's announced last step."""
+        return self.last_step is not None and step > self.last_step
+
+    @contextmanager
+    def interruptible(self) -> Iterator[trio.CancelScope]:
+        """A cancel scope that the end marker cancels (wrap a wait for the next step)."""
+        with trio.CancelScope() as scope:
+            self._scopes.add(scope)
+            try:
+                yield scope
+            finally:
+                self._scopes.discard(scope)
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:  # pragma: no cover - session already closed
+            pass
+
+    def __enter__(self) -> Controls:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+MIN_SPEED, MAX_SPEED = 0.01, 1e6
+"""The range a positive ``speed`` is clamped to (steps/s)."""
+
+
+@dataclass
+class RunControl:
+    """The clock commands — ``pause``, ``resume``, ``step``, ``speed``, ``quit`` — with the
+    semantics of ``tui/driver.py``. The world obeys this state; the executor applies the same
+    control stream to its own copy, so its status reports the world's pause and speed without
+    asking it.
+
+    ``default_speed`` is what ``speed 0`` means: 0 (as fast as possible) in lockstep, the
+    configured tick rate under the realtime clock (where "as fast as possible" has no
+    meaning: the world would never wait for a motor command).
+    """
+
+    paused: bool = False
+    budget: int = 0
+    """Steps still to take while paused (``step {"n": k}``)."""
+    speed: float = 0.0
+    """Steps/s: lockstep pace (0 = free) or realtime tick rate."""
+    default_speed: float = 0.0
+    quit: bool = False
+    message: str = ""
+    """The answer to the last command (``AgentStatus.message``)."""
+
+    def apply(self, c: Control) -> bool:
+        """Apply a clock command; False for the others (goal, save). Raises
+        :class:`ControlError` for malformed arguments (the state is left as it was)."""
+        a = c.args
+        if c.command == "pause":
+            self.paused, self.budget, self.message = True, 0, "paused"
+        elif c.command == "resume":
+            self.paused, self.budget, self.message = False, 0, "resumed"
+        elif c.command == "step":
+            n = max(1, _number(a, "n", 1, int))
+            self.paused = True
+            self.budget += n
+            self.message = f"step {self.budget}"
+        elif c.command == "speed":
+            x = max(0.0, _number(a, "steps_per_s", 0.0, float))
+            self.speed = min(max(x, MIN_SPEED), MAX_SPEED) if x > 0 else self.default_speed
+            self.message = f"speed {self.speed:g} steps/s" if self.speed else "speed: free"
+        elif c.command == "quit":
+            self.quit = True
+            last = a.get("last_step")
+            self.message = "quit" if last is None else f"run ended after step {last}"
+        else:
+            return False
+        return True
+
+    @property
+    def may_step(self) -> bool:
+        """Whether the world may take its next step now."""
+        return not self.quit and (not self.paused or self.budget > 0)
+
+    def stepped(self) -> None:
+        """One step was taken (uses up the single-step budget while paused)."""
+        if self.budget > 0:
+            self.budget -= 1
+
+
+def _number(args: dict[str, Any], name: str, default: Any, kind: type) -> Any:
+    """``args[name]`` as ``kind`` (int or float); bool, strings, lists... are malformed."""
+    v = args.get(name, default)
+    if type(v) not in (int, float) or (kind is int and v != int(v)):
+        raise ControlError(f"{name} must be a{'n integer' if kind is int else ' number'}, "
+                           f"got {v!r}")
+    return kind(v)
 
 
 class DeltaInbox:

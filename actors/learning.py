@@ -27,9 +27,11 @@ from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.runtime.lockstep import batch_kinds
 
 from .common import (
+    Controls,
     DeltaInbox,
     Resume,
     RunContext,
+    RunEnded,
     StepInbox,
     percept_from_qstate,
     resume_inputs,
@@ -59,11 +61,12 @@ async def run(session, ctx: RunContext, role: str) -> dict:
     with declare_alive(session, ctx.run_id, role), \
             TrioSubscriber(session, keys.key(ctx.run_id, "qstate"), counter=counter) as sub, \
             Publisher(session, ctx.run_id, f"delta/{kind}") as pub, \
-            ReplayLog(session, ctx.run_id, f"delta/{kind}", ctx.replay_keep) as replay:
+            ReplayLog(session, ctx.run_id, f"delta/{kind}", ctx.replay_keep) as replay, \
+            Controls(session, ctx, counter, keep=False) as end:   # the world's end marker
         deltas = DeltaInbox(session, ctx, counter)
         out = Outbox(pub, replay, kind, ctx.params.batch_lag, in_flight)
         try:
-            inbox = StepInbox(sub, first=resume.step + 1)
+            inbox = StepInbox(sub, first=resume.step + 1, end=end)
             for d in resume.state.get("own", []):      # published before the snapshot
                 out.log(DeltaMsg(kind, d))
             await resume_inputs(session, ctx, resume, inbox, "qstate", deltas, counter)
@@ -72,7 +75,10 @@ async def run(session, ctx: RunContext, role: str) -> dict:
             snapshot_pending = False
             async with trio.open_nursery() as nursery:
                 for t in range(resume.step + 1, ctx.start + ctx.steps):
-                    msg = await inbox.get(t)
+                    try:
+                        msg = await inbox.get(t)
+                    except RunEnded:                # quit: the world took no step t
+                        break
                     if msg.rejected:
                         deltas.book.skipped.add(t)
                     else:

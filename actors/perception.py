@@ -12,9 +12,11 @@ from qlap_runtime.qlap.variables import VariableTable
 from qlap_runtime.runtime.snapshot import load_perception, save_perception
 
 from .common import (
+    Controls,
     DeltaInbox,
     Resume,
     RunContext,
+    RunEnded,
     StepInbox,
     qstate_of,
     resume_inputs,
@@ -52,15 +54,19 @@ async def run(session, ctx: RunContext) -> dict:
     with declare_alive(session, ctx.run_id, NAME), \
             TrioSubscriber(session, keys.key(ctx.run_id, "sense"), counter=counter) as sub, \
             Publisher(session, ctx.run_id, "qstate") as pub, \
-            ReplayLog(session, ctx.run_id, "qstate", ctx.replay_keep) as replay:
+            ReplayLog(session, ctx.run_id, "qstate", ctx.replay_keep) as replay, \
+            Controls(session, ctx, counter, keep=False) as end:   # the world's end marker
         deltas = DeltaInbox(session, ctx, counter)
         try:
-            inbox = StepInbox(sub, first=resume.step + 1)
+            inbox = StepInbox(sub, first=resume.step + 1, end=end)
             await resume_inputs(session, ctx, resume, inbox, "sense", deltas, counter)
             start = ctx.start
             last_observed = int(resume.state.get("last_observed", start - 1))
             for t in range(resume.step + 1, start + ctx.steps):
-                msg = await inbox.get(t)
+                try:
+                    msg = await inbox.get(t)
+                except RunEnded:                    # quit: the world took no step t
+                    break
                 if last_observed >= start and last_observed > deltas.book.last:
                     # Deltas applied at the boundary of the last observed step change the
                     # landmarks used from t on.

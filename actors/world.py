@@ -4,6 +4,12 @@ Publishes ``sense(t)`` — the world's observation at t plus the motor values be
 (those of ``motor(t − 1)``) — then waits for ``motor(t)``, applies it and steps. It keeps its
 recent ``sense`` messages in a replay log for a perception actor restarted from a snapshot.
 The world itself is not restartable: its physics state is not snapshotted (docs/runtime.md).
+
+It drives the clock, so it obeys the UI's clock commands on ``control`` (docs/runtime.md,
+Controls) between two steps: ``pause``, ``resume``, ``step {"n": k}``, ``speed {"steps_per_s":
+x}`` (lockstep: pace; realtime: tick rate) and ``quit``, after which it publishes the end
+marker ``quit {"last_step": T}`` so that every other actor ends its loop after step T. Pausing
+only delays steps, so a lockstep run learns the same whether paused or not.
 """
 
 from __future__ import annotations
@@ -15,9 +21,9 @@ import trio
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
 from qlap_runtime.bus.replay import ReplayLog
-from qlap_runtime.bus.schema import Sense, WorldView
+from qlap_runtime.bus.schema import Control, Sense, WorldView
 
-from .common import RunContext, StepInbox
+from .common import ControlError, Controls, RunContext, RunControl, StepInbox
 
 NAME = "world"
 
@@ -36,18 +42,62 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 TrioSubscriber(session, keys.key(ctx.run_id, "motor"), counter=counter) as sub, \
                 Publisher(session, ctx.run_id, "sense") as pub, \
                 Publisher(session, ctx.run_id, "world") as view, \
-                ReplayLog(session, ctx.run_id, "sense", ctx.replay_keep) as replay:
+                ReplayLog(session, ctx.run_id, "sense", ctx.replay_keep) as replay, \
+                Controls(session, ctx, counter) as controls, \
+                Publisher(session, ctx.run_id, "control") as end_marker:
             start = ctx.start
             inbox = StepInbox(sub, first=start)
             last_view = 0.0
             if ready is not None:
                 await ready.wait()
-            period = 1.0 / float(ctx.extra.get("hz", 100.0)) if ctx.realtime else 0.0
+            hz = float(ctx.extra.get("hz", 100.0)) if ctx.realtime else 0.0
+            period = 1.0 / hz if ctx.realtime else 0.0
+            rc = RunControl(speed=hz, default_speed=hz)
             tick0 = trio.current_time()
             tick = 0
+            pace0 = (tick0, start)          # lockstep pacing: step s is due at t0 + (s - s0)/x
+            paused_s = 0.0
             lateness: list[float] = []
+
+            async def gate(t: int) -> bool:
+                """Apply the pending controls, then wait while paused or ahead of the set pace
+                (a control arriving meanwhile is applied at once); False: quit."""
+                nonlocal tick0, tick, period, pace0, paused_s
+                rebase = False
+                while True:
+                    for c in controls.take():
+                        try:
+                            rebase = rc.apply(c) or rebase
+                        except ControlError as e:
+                            counter.reject(controls.key, f"{c.command}: {e}")
+                    if rc.quit:
+                        return False
+                    if not rc.may_step:
+                        t0 = time.perf_counter()
+                        await controls.wait()
+                        paused_s += time.perf_counter() - t0
+                        rebase = True
+                        continue
+                    if rebase:              # the clock restarts from now: no catching up
+                        rebase = False
+                        pace0 = (trio.current_time(), t)
+                        if ctx.realtime:
+                            period, tick0, tick = 1.0 / rc.speed, pace0[0], 0
+                    if not ctx.realtime and rc.speed > 0 and not rc.paused:
+                        deadline = pace0[0] + (t - pace0[1]) / rc.speed
+                        if trio.current_time() < deadline:
+                            with trio.move_on_at(deadline) as pacing:
+                                await controls.wait()
+                            if not pacing.cancelled_caught:
+                                continue    # a control came first
+                    return True
+
+            last = start - 1
             loop_t0 = time.perf_counter()
             for t in range(start, start + ctx.steps):
+                if (controls.pending or not rc.may_step
+                        or (rc.speed > 0 and not ctx.realtime)) and not await gate(t):
+                    break
                 if ctx.realtime:
                     # §4 realtime: tick at a fixed rate; a tick more than one period late is
                     # missed (skipped, counted); the motor not back by the next deadline is
@@ -89,9 +139,17 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                                        world.render_text(44, 14),
                                        {k: float(v) for k, v in obs.items()}, applied, {}))
                 stats["steps"] += 1
+                rc.stepped()
+                last = t
+            if rc.quit:
+                # The end marker: every other actor ends after step `last` (the last one whose
+                # sense was published and whose motor was applied) and writes its outputs.
+                end_marker.put(Control("quit", {"last_step": last}))
+                stats["quit_at_step"] = last
             # The step chain's own rate, start-up (imports, sessions, waiting for the other
-            # actors) excluded: what the benchmarks compare between placements.
-            stats["loop_s"] = round(time.perf_counter() - loop_t0, 3)
+            # actors) and pauses excluded: what the benchmarks compare between placements.
+            stats["loop_s"] = round(time.perf_counter() - loop_t0 - paused_s, 3)
+            stats["paused_s"] = round(paused_s, 3)
     finally:
         world.close()
     stats["rejected"] = counter.snapshot().total
