@@ -279,8 +279,9 @@ class Display:
             if cad.stats_due(now):
                 self.pubs["stats"].put(tm.stats_msg(status, actor=NAME))
         sig = tm.knowledge_signature(agent)
-        if cad.knowledge_due(now, agent.step_count, sig) \
-                or (force and sig != cad.last_signature):
+        if (cad.knowledge_due(now, agent.step_count, sig)
+                or (force and sig != cad.last_signature)) and self.pubs["knowledge"].matched:
+            # Built only for someone (a UI, a recorder, the progress bar): ~35 ms when grown.
             cad.last_signature = sig
             self.pubs["knowledge"].put(tm.knowledge_msg(agent))
 

@@ -1,6 +1,6 @@
 """The local driver: the synchronous agent in a worker thread, publishing telemetry on Zenoh.
 
-``qlap run`` in a terminal uses it until the actor runtime exists: the agent steps in its own
+``qlap run`` in a terminal uses it (no placement given): the agent steps in its own
 thread (never waiting for a viewer), publishes the display topics of
 :mod:`qlap_runtime.telemetry` with ``CongestionControl.DROP`` on an embedded session (no
 sockets; ``listen=[...]`` lets outside viewers attach, ``qlap tui --connect``), and obeys
@@ -16,8 +16,9 @@ goal       ``{"var": name, "value": label or index}`` → ``agent.set_goal``; ``
 quit       stop the run (the thread ends; the driver's owner closes the session)
 =========  =========================================================================
 
-The viewer sees only bus messages, so the actor runtime's executor can later publish the same
-telemetry and the TUI will not notice.
+The viewer sees only bus messages: the actor runtime's executor publishes the same telemetry,
+and the actors obey the same controls (docs/runtime.md, Controls), so the same UI attaches to
+either.
 """
 
 from __future__ import annotations

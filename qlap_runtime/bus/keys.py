@@ -128,12 +128,12 @@ def new_run_id() -> str:
 
 
 WRITERS: dict[str, tuple[str, ...]] = {
-    "world": ("sense",),
+    "world": ("sense", "world", "control"),       # control: the end marker of a quit
     "perception": ("qstate",),
     "contingency": ("delta/dbn",),
     "landmarks": ("delta/landmarks",),
     "planner": ("delta/plans",),
-    "executor": ("motor", "calllist", "iac"),
+    "executor": ("motor", "calllist", "iac", "status", "knowledge"),
     "tui": ("control",),
     "supervisor": ("control",),
     "recorder": (),

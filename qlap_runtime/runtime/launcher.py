@@ -254,10 +254,11 @@ class _Recorder:
 def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float,
             restarts: dict[str, Any] | None = None) -> dict[str, Any]:
     clock = ctx.extra.get("clock", "lockstep")
+    steps = int(results.get("world", {}).get("steps", ctx.steps))   # fewer after a quit
     summary: dict[str, Any] = {"placement": placement, "clock": clock,
-                               "world": ctx.world, "seed": ctx.seed, "steps": ctx.steps,
+                               "world": ctx.world, "seed": ctx.seed, "steps": steps,
                                "wall_time_s": round(wall, 3),
-                               "steps_per_s": round(ctx.steps / wall, 1) if wall else None,
+                               "steps_per_s": round(steps / wall, 1) if wall else None,
                                "actors": results,
                                "waits": sum(r.get("waits", 0) for r in results.values()),
                                "rejected_messages": sum(r.get("rejected", 0)

@@ -201,7 +201,9 @@ async def test_quit_ends_every_actor_after_the_same_step_and_writes_the_outputs(
     assert last == seen["step"] and world["steps"] == last + 1
     assert executor["quit_at_step"] == last and executor["steps_done"] == last + 1
     assert (tmp_path / "checkpoints" / "final" / "agent.json").is_file()
-    assert json.loads((tmp_path / "summary.json").read_text())["placement"] == "embedded"
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written["placement"] == "embedded"
+    assert summary["steps"] == written["steps"] == last + 1      # the steps made, not asked
     # The outputs describe the run that was made: the synchronous loop's first last+1 steps.
     assert (tmp_path / "knowledge.json").read_text() == sync_knowledge(ctx, last + 1)
 
