@@ -17,7 +17,7 @@ import trio
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import RejectionCounter, TrioSubscriber
 from qlap_runtime.bus.replay import fetch_replay
-from qlap_runtime.bus.schema import Control, DeltaMsg, QState
+from qlap_runtime.bus.schema import BatchContext, Control, DeltaMsg, QState
 from qlap_runtime.qlap.params import Params
 from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.variables import Event, VariableTable
@@ -501,6 +501,24 @@ def _names(table: VariableTable) -> tuple[tuple[str, ...], dict[str, int]]:
         cached = (names, {name: i for i, name in enumerate(names)})
         table._names_cache = cached  # type: ignore[attr-defined]
     return cached
+
+
+def batch_context(agent: Any, step: int) -> BatchContext:
+    """What the batch after ``step`` reads of the executor's agent (§6.2.1): the sufficiently
+    reliable actions and the DBNs that are plans."""
+    learner = agent.learner
+    return BatchContext(step, tuple(sorted((int(v), int(q))
+                                           for v, q in learner.reliable_actions)),
+                        tuple(sorted(int(i) for i, d in learner.dbns.items() if d.is_plan)))
+
+
+def apply_batch_context(learner: Any, msg: BatchContext) -> None:
+    """Give a batch actor's learner the executor's state that its next batch reads, as the
+    synchronous loop's learner has it (the agent sets it there)."""
+    learner.reliable_actions = {(v, q) for v, q in msg.reliable_actions}
+    plans = set(msg.plan_dbns)
+    for dbn_id, dbn in learner.dbns.items():
+        dbn.is_plan = dbn_id in plans
 
 
 def qstate_of(p: Percept, table: VariableTable) -> QState:

@@ -30,6 +30,7 @@ from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import Control, Motor
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import atomic_write_json, load_agent, save_agent
+from qlap_runtime.runtime.lockstep import batch_kinds
 
 from .common import (
     ControlError,
@@ -40,6 +41,7 @@ from .common import (
     RunControl,
     RunEnded,
     StepInbox,
+    batch_context,
     percept_from_qstate,
     resume_inputs,
     snapshot_due,
@@ -72,6 +74,8 @@ async def run(session, ctx: RunContext) -> dict:
             TrioSubscriber(session, keys.key(ctx.run_id, "qstate"), counter=counter) as sub, \
             Publisher(session, ctx.run_id, "motor") as pub, \
             ReplayLog(session, ctx.run_id, "motor", ctx.replay_keep) as replay, \
+            Publisher(session, ctx.run_id, "batchctx") as ctx_pub, \
+            ReplayLog(session, ctx.run_id, "batchctx", ctx.replay_keep) as ctx_replay, \
             Controls(session, ctx, counter) as controls, \
             Display(session, ctx) as display:
         deltas = DeltaInbox(session, ctx, counter)
@@ -101,6 +105,11 @@ async def run(session, ctx: RunContext) -> dict:
                         for d in await deltas.due_now(t, ctx.realtime):
                             agent.learner.apply_delta(d)
                         motor = Motor(t, dict(agent.decide(p)))
+                    if batch_kinds(ctx.params, t + 1) and t + 1 < ctx.start + ctx.steps:
+                        # Before motor(t): the batch at t + 1 reads this state (§6.2.1).
+                        bc = batch_context(agent, t)
+                        ctx_pub.put(bc)
+                        ctx_replay.append(t, bc)
                     pub.put(motor)
                     replay.append(t, motor)
                     steps_done += 1

@@ -20,8 +20,8 @@ import trio
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
-from qlap_runtime.bus.replay import ReplayLog
-from qlap_runtime.bus.schema import DeltaMsg
+from qlap_runtime.bus.replay import ReplayLog, fetch_replay
+from qlap_runtime.bus.schema import BatchContext, DeltaMsg
 from qlap_runtime.qlap.checkpoint import load_learner, save_learner
 from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.runtime.lockstep import batch_kinds
@@ -33,6 +33,7 @@ from .common import (
     RunContext,
     RunEnded,
     StepInbox,
+    apply_batch_context,
     percept_from_qstate,
     resume_inputs,
     snapshot_due,
@@ -62,7 +63,8 @@ async def run(session, ctx: RunContext, role: str) -> dict:
             TrioSubscriber(session, keys.key(ctx.run_id, "qstate"), counter=counter) as sub, \
             Publisher(session, ctx.run_id, f"delta/{kind}") as pub, \
             ReplayLog(session, ctx.run_id, f"delta/{kind}", ctx.replay_keep) as replay, \
-            Controls(session, ctx, counter, keep=False) as end:   # the world's end marker
+            Controls(session, ctx, counter, keep=False) as end, \
+            TrioSubscriber(session, keys.key(ctx.run_id, "batchctx"), counter=counter) as bsub:
         deltas = DeltaInbox(session, ctx, counter)
         out = Outbox(pub, replay, kind, ctx.params.batch_lag, in_flight)
         try:
@@ -70,6 +72,12 @@ async def run(session, ctx: RunContext, role: str) -> dict:
             for d in resume.state.get("own", []):      # published before the snapshot
                 out.log(DeltaMsg(kind, d))
             await resume_inputs(session, ctx, resume, inbox, "qstate", deltas, counter)
+            # The executor's state before each batch (§6.2.1); the one before the first batch
+            # after a snapshot may be of the snapshot's own step.
+            contexts = StepInbox(bsub, first=resume.step, end=end)
+            if resume.restarted:
+                await contexts.fill_from_replay(lambda step: fetch_replay(
+                    session, ctx.run_id, "batchctx", step, counter=counter))
             for entry in replay.entries():
                 deltas.add(entry[1])            # its own deltas not yet applied here
             snapshot_pending = False
@@ -84,6 +92,9 @@ async def run(session, ctx: RunContext, role: str) -> dict:
                     else:
                         learner.observe_percept(percept_from_qstate(msg, learner.table))
                         if kind in batch_kinds(ctx.params, t):
+                            bc = await _context_before(contexts, t, ctx.start, ctx.realtime)
+                            if bc is not None:
+                                apply_batch_context(learner, bc)
                             work = learner.batch_copy()
                             if ctx.params.batch_lag == 0 and not ctx.realtime:
                                 out.publish(_compute(work, t, kind, batch_s))
@@ -105,6 +116,29 @@ async def run(session, ctx: RunContext, role: str) -> dict:
     return {"rejected": counter.snapshot().total, "waits": deltas.book.waits,
             "batches": len(batch_s), "batch_s": round(sum(batch_s), 3),
             **snapshot_stats(snapshot_s, resume)}
+
+
+async def _context_before(contexts: StepInbox, t: int, start: int,
+                          realtime: bool) -> BatchContext | None:
+    """The executor's state after step t − 1 for the batch at t: waited for in lockstep (it
+    is published before ``motor(t − 1)``, so it is on its way); in realtime the latest that
+    has arrived (None: none yet)."""
+    if not realtime:
+        if t - 1 < start:
+            return None                       # before the run's first step: none published
+        try:
+            return await contexts.get(t - 1)
+        except RunEnded:
+            return None
+    for r in contexts.sub.receive_nowait():
+        contexts.add(r.msg)
+    if not contexts.buf:
+        return None
+    latest = max(contexts.buf)
+    msg = contexts.buf[latest]
+    contexts.buf.clear()
+    contexts.buf[latest] = msg            # kept: the next batch may have no newer one
+    return msg
 
 
 class Outbox:

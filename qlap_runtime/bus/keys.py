@@ -33,13 +33,13 @@ import time
 ROOT = "qlap"
 
 TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "delta/plans",
-          "calllist", "iac", "stats", "control", "knowledge", "world", "status")
+          "calllist", "iac", "stats", "control", "knowledge", "world", "status", "batchctx")
 """Every data topic under ``qlap/<run-id>/``."""
 
 ALIVE = "alive"
 
 REPLAY = "replay"
-REPLAY_TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks")
+REPLAY_TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "batchctx")
 """The lockstep topics whose writers keep a replay log (docs/runtime.md, Faults)."""
 
 _FORBIDDEN = set("*$/#?") | {" ", "\t", "\n", "\r"}
@@ -133,7 +133,7 @@ WRITERS: dict[str, tuple[str, ...]] = {
     "contingency": ("delta/dbn",),
     "landmarks": ("delta/landmarks",),
     "planner": ("delta/plans",),
-    "executor": ("motor", "calllist", "iac", "status", "knowledge"),
+    "executor": ("motor", "calllist", "iac", "status", "knowledge", "batchctx"),
     "tui": ("control",),
     "supervisor": ("control",),
     "recorder": (),

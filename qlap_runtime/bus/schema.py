@@ -94,6 +94,26 @@ class Motor:
     """Schema version of this message type."""
 
 
+@dataclass(frozen=True)
+class BatchContext:
+    """What a batch reads of the executor's state, as it was after step t (topic
+    ``batchctx``), published for the step before each batch step.
+
+    Algorithm 2's batches consult the agent (§6.2.1): no new DBN predicts, no event landmark
+    is learned for, and DBNs are deleted when their consequent is a sufficiently reliable
+    action; DBNs that are plans are never deleted as old. The batch actors hold no actions or
+    plans, so the executor tells them; the synchronous loop reads the same state directly."""
+
+    step: int
+    """The step t after whose decision the state was taken (the batch is at t + 1)."""
+    reliable_actions: tuple[tuple[int, int], ...] = ()
+    """Sufficiently reliable actions a(v, q) as (variable index, value index), sorted."""
+    plan_dbns: tuple[int, ...] = ()
+    """Ids of the DBNs that are plans, sorted."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
 DeltaKind = Literal["dbn", "landmarks", "plans"]
 
 
@@ -400,11 +420,12 @@ TOPIC_TYPES: dict[str, type] = {
     "sense": Sense, "qstate": QState, "motor": Motor, "delta/dbn": DeltaMsg,
     "delta/landmarks": DeltaMsg, "delta/plans": DeltaMsg, "calllist": CallList,
     "iac": IACChoice, "stats": Stats, "control": Control,
-    "knowledge": Knowledge, "world": WorldView, "status": AgentStatus}
+    "knowledge": Knowledge, "world": WorldView, "status": AgentStatus,
+    "batchctx": BatchContext}
 """The message type each topic carries."""
 
 MESSAGE_TYPES: tuple[type, ...] = (Sense, QState, Motor, DeltaMsg, CallList, IACChoice, Stats,
-                                   Control, Knowledge, WorldView, AgentStatus)
+                                   Control, Knowledge, WorldView, AgentStatus, BatchContext)
 
 SUPPORTED_VERSIONS: dict[type, frozenset[int]] = {t: frozenset({1}) for t in MESSAGE_TYPES}
 """Versions :func:`decode` accepts, per type."""

@@ -12,6 +12,7 @@ from qlap_runtime.bus.schema import (
     TOPIC_TYPES,
     ActionInfo,
     AgentStatus,
+    BatchContext,
     CallList,
     Control,
     DeltaMsg,
@@ -37,6 +38,7 @@ EXAMPLES = {
     "sense": Sense(7, {"hand_x": 0.25, "hand_y": -1.5}),
     "qstate": QState(7, {"hand_x": 2, "T": 0}, (("hand_x", 2, 1), ("T", 0, 0))),
     "motor": Motor(7, {"u_x": 300.0, "u_UG": 0.0}),
+    "batchctx": BatchContext(1999, ((5, 2), (7, 0)), (0, 3, 12)),
     "delta/dbn": DeltaMsg.of("dbn", Delta(3, 4000, 4500, (
         ("set_k", 4), ("add_dbn", "change", ["u_x", 2, 0], ["hand_x", 1, 1], [])))),
     "delta/landmarks": DeltaMsg.of("landmarks", Delta(1, 4000, 4500, (
