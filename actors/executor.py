@@ -100,8 +100,10 @@ async def run(session, ctx: RunContext) -> dict:
                         rejected.append(f"step {t}: {msg.rejected}")
                         motor = Motor(t, dict(agent.motor))
                     else:
-                        p = percept_from_qstate(msg, agent.table)
-                        agent.learner.observe_percept(p)
+                        # The learner's percept (not the message's): a landmark applied at
+                        # this step renumbers its q in place, as in the synchronous loop, so
+                        # the decision reads the current values with the new landmarks.
+                        p = agent.learner.observe_percept(percept_from_qstate(msg, agent.table))
                         for d in await deltas.due_now(t, ctx.realtime):
                             agent.learner.apply_delta(d)
                         motor = Motor(t, dict(agent.decide(p)))

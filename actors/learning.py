@@ -126,6 +126,8 @@ async def _context_before(contexts: StepInbox, t: int, start: int,
     if not realtime:
         if t - 1 < start:
             return None                       # before the run's first step: none published
+        for old in [k for k in contexts.buf if k < t - 1]:
+            del contexts.buf[old]              # batches of the other actor's kind only
         try:
             return await contexts.get(t - 1)
         except RunEnded:
