@@ -24,6 +24,7 @@ from typing import Any
 
 import trio
 
+from qlap_runtime import telemetry
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
 from qlap_runtime.bus.replay import ReplayLog
@@ -229,29 +230,11 @@ class Commands:
         if type(var) is not str:
             raise ControlError(f"var must be a variable name, got {var!r}")
         try:
-            key = goal_key(agent, var, a.get("value"))
+            key = telemetry.goal_key(agent, var, a.get("value"))
             agent.set_goal(*key)
         except (ValueError, KeyError, TypeError, IndexError) as e:
             return f"goal refused: {e}"
-        from qlap_runtime import telemetry
-
         return f"goal {telemetry.pretty(agent.action_label(key))}"
-
-
-def goal_key(agent: Agent, var: str, value: Any) -> tuple[int, int]:
-    """The action key (variable index, value index) that ``goal {"var", "value"}`` names: the
-    value is an index or a label of the variable's quantity space (as the UI shows it)."""
-    from qlap_runtime import telemetry
-
-    vi = agent.table.index(var)
-    if type(value) is int:
-        return vi, value
-    labels = [agent.learner.value_label(vi, q)
-              for q in range(int(agent.learner.perception.events.sizes[vi]))]
-    for q, label in enumerate(labels):
-        if str(value) in (label, telemetry.pretty(label)):
-            return vi, q
-    raise ValueError(f"{value!r} is not a value of {var} ({', '.join(labels)})")
 
 
 class Display:
@@ -259,8 +242,6 @@ class Display:
     rate: they only read the agent, so they never change what it does."""
 
     def __init__(self, session, ctx: RunContext) -> None:
-        from qlap_runtime import telemetry
-
         self.telemetry = telemetry
         self.ctx = ctx
         self.cadence = telemetry.Cadence()

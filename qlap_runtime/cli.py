@@ -247,20 +247,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     progress_cb = None
     bar = None
     if not args.quiet:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeRemainingColumn,
-        )
+        from .runtime.progress import progress_bar
 
-        bar = Progress(TextColumn("[bold]QLAP[/]"), BarColumn(), MofNCompleteColumn(),
-                       TextColumn("{task.fields[rate]:>7} steps/s"),
-                       TextColumn("DBNs {task.fields[dbns]:>4}  plans {task.fields[plans]:>3}  "
-                                  "landmarks {task.fields[lms]:>3}"),
-                       TimeRemainingColumn(), transient=False)
-        task = bar.add_task("run", total=args.steps, rate="-", dbns=0, plans=0, lms=0)
+        bar = progress_bar(args.steps)
+        task = bar.task_ids[0]
         state = {"t0": time.perf_counter(), "first": None}
 
         def progress_cb(t: int, agent) -> None:

@@ -257,3 +257,17 @@ def all_messages(agent: Any, world: Any, **status: Any) -> Iterable[tuple[str, A
     yield "calllist", call_list_msg(agent)
     yield "world", world_msg(agent, world)
     yield "status", status_msg(agent, **status)
+
+
+def goal_key(agent: Any, var: str, value: Any) -> tuple[int, int]:
+    """The action key (variable index, value index) that ``goal {"var", "value"}`` names: the
+    value is an index or a label of the variable's quantity space (as the UI shows it)."""
+    vi = agent.table.index(var)
+    if type(value) is int:
+        return vi, value
+    labels = [agent.learner.value_label(vi, q)
+              for q in range(int(agent.learner.perception.events.sizes[vi]))]
+    for q, label in enumerate(labels):
+        if str(value) in (label, pretty(label)):
+            return vi, q
+    raise ValueError(f"{value!r} is not a value of {var} ({', '.join(labels)})")

@@ -222,7 +222,7 @@ class LocalDriver:
             else:
                 try:
                     value = a.get("value")
-                    key = self._goal_value(str(a["var"]), value)
+                    key = telemetry.goal_key(self.agent, str(a["var"]), value)
                     self.agent.set_goal(*key)
                     self._message = f"goal {telemetry.pretty(self.agent.action_label(key))}"
                 except (ValueError, KeyError, TypeError) as e:
@@ -230,18 +230,6 @@ class LocalDriver:
         elif c.command == "quit":
             self._message = "quit"
             self._stop.set()
-
-    def _goal_value(self, var: str, value: Any) -> tuple[int, int]:
-        agent = self.agent
-        vi = agent.table.index(var)
-        if isinstance(value, int):
-            return vi, value
-        labels = [agent.learner.value_label(vi, q)
-                  for q in range(int(agent.learner.perception.events.sizes[vi]))]
-        for q, label in enumerate(labels):
-            if str(value) in (label, telemetry.pretty(label)):
-                return vi, q
-        raise ValueError(f"{value!r} is not a value of {var} ({', '.join(labels)})")
 
     # ----------------------------------------------------------------------------- the loop
     def _main(self) -> None:

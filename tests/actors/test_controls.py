@@ -66,6 +66,15 @@ class Pilot:
             while not predicate():  # noqa: ASYNC110 - the state is set by the watch tasks
                 await trio.sleep(0.01)
 
+    async def rate_at(self, steps_per_s: float, seconds: float = 1.0) -> float:
+        """Set the speed, resume, and measure the world's steps per second over ``seconds``."""
+        self.put("speed", steps_per_s=steps_per_s)
+        self.put("resume")
+        await self.until(lambda: not self.status.paused and self.status.speed == steps_per_s)
+        s, t0 = self.step, time.monotonic()
+        await trio.sleep(seconds)
+        return (self.step - s) / (time.monotonic() - t0)
+
     async def steady_step(self, quiet: float = 0.5) -> int:
         """The world's step once it has not moved for ``quiet`` seconds (it is paused)."""
         while True:
@@ -139,12 +148,7 @@ async def test_pause_single_step_goal_save_speed_and_resume(tmp_path):
         await p.until(lambda: p.status.goal == "" and p.status.message == "goal cleared")
         assert p.step == s + 5                        # goal and save took no step
 
-        p.put("speed", steps_per_s=40)
-        p.put("resume")
-        await p.until(lambda: not p.status.paused and p.status.speed == 40)
-        s, t0 = p.step, time.monotonic()
-        await trio.sleep(1.0)
-        rate = (p.step - s) / (time.monotonic() - t0)
+        rate = await p.rate_at(40)
         assert 10 < rate < 60, rate
         seen["rate"] = rate
         p.put("speed", steps_per_s=0)                 # free again: run to the end
@@ -220,12 +224,7 @@ async def test_realtime_pause_does_not_count_missed_ticks_and_speed_sets_the_tic
         s = await p.steady_step(0.2)
         await trio.sleep(1.0)                   # 100 ticks' worth: none of them missed
         assert p.step == s
-        p.put("speed", steps_per_s=40)
-        p.put("resume")
-        await p.until(lambda: not p.status.paused and p.status.speed == 40)
-        s, t0 = p.step, time.monotonic()
-        await trio.sleep(1.0)
-        rate = (p.step - s) / (time.monotonic() - t0)
+        rate = await p.rate_at(40)
         assert 10 < rate < 55, rate
         p.put("speed", steps_per_s=0)           # realtime: back to the configured rate
         await p.until(lambda: p.status.speed == 100)
