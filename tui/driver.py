@@ -349,9 +349,14 @@ def _child_main(spec: dict[str, Any], ready: Any = None) -> None:
     import worlds
     from qlap_runtime.qlap import Params
 
-    params = Params().replace(**spec.pop("params")) if spec.get("params") else None
+    spec = dict(spec)
+    # Take every key that is not a LocalDriver argument out of the spec unconditionally:
+    # popping only when truthy left ``params={}`` (the default of ``qlap run``) in the spec,
+    # so it reached LocalDriver twice (issue 12).
+    overrides = spec.pop("params", None) or {}
     out = spec.pop("out", None)
     world = worlds.make(spec.pop("world"))
+    params = Params().replace(**overrides) if overrides else None
 
     def finish(d: LocalDriver) -> None:
         if out is None:
