@@ -475,7 +475,7 @@ def percept_from_qstate(msg: QState, table: VariableTable) -> Percept:
     x = _vector(msg.x, names, index, np.nan, float)
     q = _vector(msg.values, names, index, -1, np.int64)
     events = tuple(Event(index[name], int(v), int(d)) for name, v, d in msg.events)
-    return Percept(msg.step, x, q, events, np.zeros(0, dtype=np.int64))
+    return Percept(msg.step, x, q, events, np.zeros(0, dtype=np.int64), msg.discontinuity)
 
 
 def _vector(by_name: dict, names: tuple[str, ...], index: dict[str, int], missing: Any,
@@ -528,7 +528,7 @@ def qstate_of(p: Percept, table: VariableTable) -> QState:
     x = {k: v for k, v in zip(names, xs, strict=True) if v == v}          # NaN: not yet known
     q = {k: v for k, v in zip(names, qs, strict=True) if v >= 0}
     events = tuple((names[e.var], int(e.value), int(e.direction)) for e in p.events)
-    return QState(p.step, q, events, x)
+    return QState(p.step, q, events, x, discontinuity=p.discontinuity)
 
 
 async def checkpoint_async(fn, *args) -> None:

@@ -72,7 +72,8 @@ async def run(session, ctx: RunContext) -> dict:
                     # landmarks used from t on.
                     apply_landmark_ops(per, await deltas.due_now(last_observed, ctx.realtime))
                 try:
-                    p = per.perceive(t, per.vector(msg.values), copy=False)
+                    p = per.perceive(t, per.vector(msg.values), copy=False,
+                                     discontinuity=msg.discontinuity)
                 except InvalidObservation as exc:
                     rejected_obs += 1
                     deltas.book.skipped.add(t)

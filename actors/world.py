@@ -114,7 +114,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                     tick += 1
                 values = dict(obs)
                 values.update(applied)
-                sense = Sense(t, values)
+                sense = Sense(t, values, bool(getattr(world, "discontinuity", False)))
                 pub.put(sense)
                 replay.append(t, sense)             # for a perception actor restarted later
                 t0 = time.perf_counter()

@@ -36,6 +36,9 @@ def params_for_world(world: Any, base: Params | None = None) -> Params:
         changes["ablations"] = dataclasses.replace(params.ablations, nrp=True)
     if "derivative_zero_band" in opts:
         changes["derivative_zero_band"] = float(opts["derivative_zero_band"])
+    step_seconds = getattr(world, "step_seconds", None)
+    if step_seconds is not None and float(step_seconds) != params.step_seconds:
+        changes["step_seconds"] = float(step_seconds)
     return params.replace(**changes) if changes else params
 
 
@@ -78,7 +81,7 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     t0 = time.perf_counter()
     for t in range(start, start + steps):
         try:
-            motor = agent.step(t, obs)
+            motor = agent.step(t, obs, discontinuity=bool(getattr(world, "discontinuity", False)))
         except InvalidObservation as exc:
             rejected.append(f"step {t}: {exc}")
         obs = world.step(motor)

@@ -36,7 +36,7 @@ def main() -> None:
     start = time.perf_counter()
     for t in range(args.steps):
         t0 = time.perf_counter()
-        motor = agent.step(t, obs)
+        motor = agent.step(t, obs, discontinuity=bool(getattr(world, "discontinuity", False)))
         obs = world.step(motor)
         dt = time.perf_counter() - t0
         if t > 0 and t % period == 0:

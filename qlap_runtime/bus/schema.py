@@ -57,6 +57,9 @@ class Sense:
     """Agent step t (0, 1, ...)."""
     values: dict[str, float]
     """Raw real value of every observed variable, by variable name."""
+    discontinuity: bool = False
+    """The world jumped since step t − 1 (``World.discontinuity``: a replaced block, a new
+    trial); no derivative or event spans it."""
     version: int = 1
     """Schema version of this message type."""
 
@@ -78,6 +81,8 @@ class QState:
     rejected: str = ""
     """Non-empty when ``sense(t)`` was rejected (e.g. a NaN): the reason. Every actor then
     skips step t, as the synchronous loop does (the executor repeats its last motor values)."""
+    discontinuity: bool = False
+    """``sense(t)`` marked a discontinuity: the learners break their histories at t."""
     version: int = 1
     """Schema version of this message type."""
 

@@ -70,6 +70,12 @@ class PairStatistics:
                 np.add.at(self.soon_given, (rows, cols), 1)
         self.steps += 1
 
+    def drop_open_windows(self) -> None:
+        """A discontinuity: the occurrences whose window is still open are dropped, neither
+        trials nor successes (no soon-window spans a jump)."""
+        self.win_t = np.zeros(0, dtype=np.int64)
+        self.win_ids = np.zeros(0, dtype=np.int64)
+
     def resolved_steps(self) -> int:
         """Steps whose soon-window has closed."""
         return max(0, self.steps - self.k + 1)
@@ -150,8 +156,13 @@ class WindowLearner:
     """Appendix C: the average delay k_r of successful motor → change transitions.
 
     An *episode* starts when a motor variable u takes a new value (event u → q) and lasts while
-    u = q. A consequent change event E2 occurring during the episode is a success of the pair
-    (u → q, E2) with delay t' − t + 1 (first occurrence only); each episode is one trial.
+    u = q. The first change event E2 on each direction-of-change variable during the episode is
+    a successful transition of the pair (u → q, E2) with delay t' − t + 1; each episode is one
+    trial. The delays are kept as a histogram, so that the pair can be tested with "the same
+    statistics that [QLAP] keeps to learn DBNs, except that k_r is used for k": a success counts
+    only if it came within k_r steps, against the base rate of E2 in a window of k_r steps.
+    (Counting every success of a hold of up to 40 steps against a k_r-step base rate lets
+    spurious motor → change pairs pass and inflates k; docs/decisions.md.)
     """
 
     def __init__(self, motor_vars: list[int], history: int) -> None:
@@ -159,15 +170,18 @@ class WindowLearner:
         # motor var -> (E1 id, start step, consequents already credited)
         self.open: dict[int, tuple[int, int, set[int]]] = {}
         self.trials: dict[int, int] = {}                       # E1 id -> episodes
-        self.success: dict[tuple[int, int], list[int]] = {}   # (E1, E2) -> [successes, delays]
+        self.delays: dict[tuple[int, int], list[int]] = {}     # (E1, E2) -> counts by delay − 1
         self.cons_times: dict[int, deque[int]] = {}            # E2 id -> occurrence times
         self.history = history
         self.first_step: int | None = None
         self.last_step = -1
 
     def update(self, step: int, motor_events: list[tuple[int, int]],
-               cons_events: list[int]) -> None:
-        """``motor_events``: (motor var, E1 id) that occurred; ``cons_events``: E2 ids."""
+               cons_events: list[tuple[int, int]]) -> None:
+        """``motor_events``: (motor var, E1 id) that occurred; ``cons_events``: (change var,
+        E2 id, or −1 for a change to [0], which is not a consequent, §4.1.2). Only the first
+        change of each variable in an episode is the command's transition: a later reversal
+        (the hand stopping, or bouncing at its limit) is not."""
         if self.first_step is None:
             self.first_step = step
         self.last_step = step
@@ -176,48 +190,63 @@ class WindowLearner:
             if old is not None:
                 self.trials[old[0]] = self.trials.get(old[0], 0) + 1
             self.open[var] = (e1, step, set())
-        for e2 in cons_events:
-            times = self.cons_times.setdefault(e2, deque(maxlen=self.history))
-            times.append(step)
+        for var, e2 in cons_events:
+            if e2 >= 0:
+                times = self.cons_times.setdefault(e2, deque(maxlen=self.history))
+                times.append(step)
             for e1, t0, credited in self.open.values():
-                if e2 not in credited:
-                    credited.add(e2)
-                    rec = self.success.setdefault((e1, e2), [0, 0])
-                    rec[0] += 1
-                    rec[1] += step - t0 + 1
+                if var not in credited:
+                    credited.add(var)
+                    if e2 < 0:
+                        continue                        # a change to [0]: not a consequent
+                    hist = self.delays.setdefault((e1, e2), [])
+                    d = step - t0                                # delay − 1
+                    if d >= len(hist):
+                        hist.extend([0] * (d + 1 - len(hist)))
+                    hist[d] += 1
+
+    def drop_open_episodes(self) -> None:
+        """A discontinuity: the open episodes end without being counted as trials."""
+        self.open.clear()
 
     def learnable(self, min_points: int, theta_pen: float, prior: float,
                   confidence: float) -> list[tuple[int, int, float]]:
-        """Pairs (E1, E2, k_r) that pass the contingency test with their own window k_r."""
+        """Pairs (E1, E2, k_r) that pass the contingency test with their own window k_r:
+        Pr(E2 within k_r of E1) − Pr(soon_{k_r}(E2)) > θ_pen by the beta test (eq. 4.6)."""
         out = []
         if self.first_step is None:
             return out
-        for (e1, e2), (s, dsum) in sorted(self.success.items()):
+        for (e1, e2), hist in sorted(self.delays.items()):
             n = self.trials.get(e1, 0)
+            s = sum(hist)
             if n < min_points or s == 0:
                 continue
-            s_eff = min(s, n)
-            k_r = max(1, round(dsum / s))
+            mean = sum((d + 1) * c for d, c in enumerate(hist)) / s
+            k_r = max(1, round(mean))
+            s_eff = min(sum(hist[:k_r]), n)
             base = soon_fraction(np.fromiter(self.cons_times.get(e2, ()), dtype=np.int64), k_r,
                                  max(self.first_step, self.last_step - self.history + 1),
                                  self.last_step)
             thr = base + theta_pen
             if thr < 1.0 and prob_above_many(np.array([thr]), np.array([s_eff]),
                                              np.array([n - s_eff]), prior, confidence)[0]:
-                out.append((e1, e2, dsum / s))
+                out.append((e1, e2, mean))
         return out
 
     def to_state(self) -> dict:
         return {"open": {str(k): [e, t, sorted(c)] for k, (e, t, c) in self.open.items()},
                 "trials": [[k, v] for k, v in self.trials.items()],
-                "success": [[a, b, s, d] for (a, b), (s, d) in self.success.items()],
+                "delays": [[a, b, h] for (a, b), h in self.delays.items()],
                 "cons_times": [[k, list(v)] for k, v in self.cons_times.items()],
                 "first_step": self.first_step, "last_step": self.last_step}
 
     def load_state(self, d: dict) -> None:
+        if "delays" not in d:
+            raise ValueError("window state of an older format (no delay histograms); "
+                             "this checkpoint predates the Appendix C fix and cannot resume")
         self.open = {int(k): (int(e), int(t), set(c)) for k, (e, t, c) in d["open"].items()}
         self.trials = {int(k): int(v) for k, v in d["trials"]}
-        self.success = {(int(a), int(b)): [int(s), int(dd)] for a, b, s, dd in d["success"]}
+        self.delays = {(int(a), int(b)): [int(c) for c in h] for a, b, h in d["delays"]}
         self.cons_times = {int(k): deque(v, maxlen=self.history) for k, v in d["cons_times"]}
         self.first_step = d["first_step"]
         self.last_step = int(d["last_step"])

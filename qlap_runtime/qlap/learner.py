@@ -152,17 +152,38 @@ class ModelLearner:
     # ------------------------------------------------------------------------------------------
     # per-step work (Algorithm 2 lines 2–5)
     # ------------------------------------------------------------------------------------------
-    def observe(self, step: int, obs: Mapping[str, float]) -> Percept:
+    def observe(self, step: int, obs: Mapping[str, float], discontinuity: bool = False) -> Percept:
         """Observe the real values of step ``step`` (motor values included) and learn.
 
+        ``discontinuity``: the world jumped since the previous step (``World.discontinuity``: a
+        replaced block, a new trial); the histories break there (:meth:`break_history`).
         Raises :class:`~.perception.InvalidObservation` (a ValueError naming the variable) for
         NaN/infinite values or unknown names, leaving the learner unchanged.
         """
-        return self._observe(step, self.perception.vector(obs))
+        return self._observe(step, self.perception.vector(obs), discontinuity)
 
-    def observe_vector(self, step: int, x: np.ndarray) -> Percept:
+    def observe_vector(self, step: int, x: np.ndarray, discontinuity: bool = False) -> Percept:
         """:meth:`observe` with the real values already ordered by variable index."""
-        return self._observe(step, np.array(x, dtype=float))
+        return self._observe(step, np.array(x, dtype=float), discontinuity)
+
+    def break_history(self) -> None:
+        """A discontinuity in the world: no derivative, event, soon-window or activation spans
+        it. The perception forgets its previous values; the antecedent occurrences and DBN
+        activations still waiting for their window are dropped, neither successes nor failures,
+        as between two trials (a replaced block is not block motion; docs/decisions.md)."""
+        self.perception.break_history()
+        self._drop_open_windows()
+
+    def _drop_open_windows(self) -> None:
+        if not self.follower:
+            self.pairs.drop_open_windows()
+            self.window.drop_open_episodes()
+        for entry in (e for _, _, e in self._expiry):
+            entry[2] = True
+        self._expiry.clear()
+        for dbn in self.dbns.values():
+            dbn.pending.clear()
+        self._mag_active.clear()
 
     def observe_percept(self, p: Percept) -> Percept:
         """Learn from a percept computed elsewhere (the perception actor) with the same
@@ -170,6 +191,8 @@ class ModelLearner:
         runtime computes them with :meth:`compute_parts` and applies their deltas)."""
         if p.step <= self.step:
             raise ValueError(f"steps must increase: got {p.step} after {self.step}")
+        if p.discontinuity:
+            self._drop_open_windows()
         return self._learn_step(self.perception.ingest(p))
 
     def _learn_step(self, p: Percept) -> Percept:
@@ -183,10 +206,13 @@ class ModelLearner:
         self._update_dbns(p)
         return p
 
-    def _observe(self, step: int, x: np.ndarray) -> Percept:
+    def _observe(self, step: int, x: np.ndarray, discontinuity: bool = False) -> Percept:
         if step <= self.step:
             raise ValueError(f"steps must increase: got {step} after {self.step}")
-        p = self._learn_step(self.perception.perceive(step, x, copy=False))
+        percept = self.perception.perceive(step, x, copy=False, discontinuity=discontinuity)
+        if discontinuity:
+            self._drop_open_windows()
+        p = self._learn_step(percept)
         if not self.auto_batches:
             return p
         while self.pending_deltas and self.pending_deltas[0].apply_at <= step:
@@ -202,8 +228,9 @@ class ModelLearner:
     def _update_window(self, p: Percept) -> None:
         motor_events = [(e.var, int(i)) for e, i in zip(p.events, p.event_ids, strict=True)
                         if self.table[e.var].kind is Kind.MOTOR]
-        cons = [int(i) for e, i in zip(p.events, p.event_ids, strict=True)
-                if self.table[e.var].kind is Kind.CHANGE and e.value != CHANGE_ZERO]
+        cons = [(e.var, int(i) if e.value != CHANGE_ZERO else -1)
+                for e, i in zip(p.events, p.event_ids, strict=True)
+                if self.table[e.var].kind is Kind.CHANGE]
         if motor_events or cons:
             self.window.update(p.step, motor_events, cons)
 
@@ -654,6 +681,10 @@ class ModelLearner:
                                          float(col[in_q].max()),
                                          self.perception.bin_size(var),
                                          use_bounds=v.kind is Kind.MAGNITUDE)
+                fitted = self._fit_resolution(var, lb, ub)
+                if fitted is None:
+                    continue
+                lb, ub = fitted
                 if space.interval_of_range(lb, ub) != q:
                     continue
                 if r is None:
@@ -667,10 +698,25 @@ class ModelLearner:
         found.sort(key=lambda f: (-f[0], f[1]))
         used: set[tuple[int, int]] = set()
         for _, dbn_id, var, q, (lb, ub, ante, ctx) in found:
-            if (var, q) in used:
-                continue
+            if (var, q) in used or self._fit_resolution(var, lb, ub) != (lb, ub):
+                continue                        # D.2 item 3; or too close to one just added
             used.add((var, q))
             self._do(("add_landmark", var, lb, ub, "dbn", step, dbn_id, ante, ctx))
+
+    def _fit_resolution(self, var: int, lb: float, ub: float) -> tuple[float, float] | None:
+        """A candidate landmark at the variable's resolution (docs/decisions.md): widened about
+        its centre to at least ``Perception.resolution(var)``, and refused (None) when it would
+        come closer than that to an existing landmark, where the interval between them would
+        be a sliver that no step can be seen in (§4.4.1 asks for ub − lb > 0.001 between the
+        values of a cut; Table 8.1 has no two landmarks of a motor, nor of h_x, closer)."""
+        res = self.perception.resolution(var)
+        if ub - lb < res:
+            c = 0.5 * (lb + ub)
+            lb, ub = c - 0.5 * res, c + 0.5 * res
+        for lm in self.perception.spaces[var].landmarks:
+            if max(lm.lb - ub, lb - lm.ub) < res:
+                return None
+        return lb, ub
 
     def _landmark_proposal(self, dbn: DBN, r: ModelStats, var: int, lb: float, ub: float,
                            X: np.ndarray) -> tuple | None:
@@ -913,8 +959,10 @@ class ModelLearner:
                 "brel": st.brel, "entropy": round(st.entropy, 12),
                 "sufficiently_reliable": d.ever_reliable, "plan": d.is_plan,
                 "activations": d.total, "created": d.created})
+        res = {v.name: self.perception.resolution(v.index)
+               for v in self.table.of_kind(Kind.MOTOR, Kind.MAGNITUDE)}
         return {"step": self.step, "k": self.k, "k_learned": self.k_learned,
-                "landmarks": lms, "dbns": dbns}
+                "landmarks": lms, "resolution": res, "dbns": dbns}
 
     def _event_json(self, e: Event) -> dict[str, Any]:
         return {"variable": self.names[e.var], "value": self.value_label(e.var, e.value),

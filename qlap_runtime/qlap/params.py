@@ -63,11 +63,20 @@ class Params:
     """The 30-data-point rule for new DBNs and both landmark searches (App. B.2)."""
 
     # --- qualitative representation (ch. 3) --------------------------------------------------
-    derivative_zero_band: float = 0.1
-    """Half-width of the range of the landmark 0 on direction-of-change variables (§4.4.1 fn 3).
-    The derivative is the change per agent step, ṽ(t) − ṽ(t−1)."""
+    derivative_zero_band: float = 0.05
+    """Half-width of the range of the landmark 0 on direction-of-change variables: [−0.05, 0.05]
+    (Table 8.1). The derivative is per second, (ṽ(t) − ṽ(t−1)) / ``step_seconds``, the
+    reference's scale (Tables 8.7–8.10: Δh_x ≈ 0.46 per step is ḣ_x ≈ 9.2)."""
+    step_seconds: float = 1.0
+    """Physical duration of one agent step in seconds (a world property, ``World.step_seconds``,
+    set by ``params_for_world``); derivatives are divided by it."""
     motor_zero_band: float = 0.0
-    """Half-width of the range of the initial motor landmark 0 (Table 3.1); 0 means exactly 0."""
+    """Half-width of the range of the initial motor landmark 0 (Table 3.1); 0 means exactly 0.
+    A motor whose range does not contain 0 in its interior gets its initial landmark at the
+    middle of its range instead (docs/decisions.md)."""
+    motor_resolution: float = 0.01
+    """A motor's resolution is this fraction of its range: no learned landmark is narrower, and
+    no two landmarks of the motor are closer (docs/decisions.md; Table 8.1 has none closer)."""
     change_epsilon: float = 0.001
     """|ṽ(t) − ṽ(t−1)| above which a change counts for event-landmark bins (§4.4.2)."""
     cut_min_gap: float = 0.001
@@ -194,6 +203,11 @@ class Params:
             raise ValueError(f"Params.k_fixed must be >= 1 or None, got {self.k_fixed!r}")
         if self.derivative_zero_band < 0 or self.motor_zero_band < 0:
             raise ValueError("zero bands must be >= 0")
+        if not self.step_seconds > 0:
+            raise ValueError(f"Params.step_seconds must be > 0, got {self.step_seconds!r}")
+        if not 0 <= self.motor_resolution < 1:
+            raise ValueError(
+                f"Params.motor_resolution must lie in [0, 1), got {self.motor_resolution!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (used in checkpoints)."""

@@ -1,9 +1,10 @@
 """Perception: raw values -> qualitative state and events (ch. 3, §3.1–3.2).
 
 Each step, the real values of the world's variables (motors included) become a vector over the
-agent's variables, with the direction of change of each magnitude computed here as
-ṽ(t) − ṽ(t−1). Every value is mapped to its qualitative value with the current landmarks
-(vectorised over all variables), and events X → x are the variables whose value changed;
+agent's variables, with the direction of change of each magnitude computed here per second,
+(ṽ(t) − ṽ(t−1)) / ``Params.step_seconds``, the reference's scale (Tables 8.7–8.10). Every
+value is mapped to its qualitative value with the current landmarks (vectorised over all
+variables), and events X → x are the variables whose value changed;
 on magnitude variables they carry ↑ or ↓.
 
 Bounded histories of real and qualitative values are kept for the landmark searches (§4.4,
@@ -41,6 +42,23 @@ class Percept:
     """Events X_t → x of this step (§3.2)."""
     event_ids: np.ndarray
     """The same events as ids of the current :class:`EventIndex`."""
+    discontinuity: bool = False
+    """The world jumped at this step (a replaced block, a new trial): no derivative or event
+    spans it, and the learners break their histories (docs/decisions.md)."""
+
+
+def initial_motor_landmark(v, params: Params) -> Landmark:
+    """Table 3.1: a motor starts with the landmark 0 (a range of half-width
+    ``Params.motor_zero_band``). A motor whose range does not contain 0 in its interior (a
+    Gymnasium action in [0, 1], core's u_UG) would never change qualitative value with it, so its
+    initial landmark is the middle of its range (docs/decisions.md)."""
+    b = params.motor_zero_band
+    low = -np.inf if v.low is None else float(v.low)
+    high = np.inf if v.high is None else float(v.high)
+    if low < -b and b < high:
+        return Landmark(-b, b)
+    mid = 0.5 * (low + high)
+    return Landmark(mid, mid)
 
 
 class EventIndex:
@@ -103,8 +121,7 @@ class Perception:
         self.spaces: list[QuantitySpace] = []
         for v in table:
             if v.kind is Kind.MOTOR:
-                b = params.motor_zero_band
-                self.spaces.append(QuantitySpace([Landmark(-b, b)]))
+                self.spaces.append(QuantitySpace([initial_motor_landmark(v, params)]))
             elif v.kind is Kind.CHANGE:
                 b = params.derivative_zero_band
                 self.spaces.append(QuantitySpace([Landmark(-b, b)]))
@@ -127,6 +144,7 @@ class Perception:
             [v.index for v in table if v.kind in (Kind.CHANGE, Kind.NOMINAL)], dtype=int)
         self._all_seen = False
         self._is_mag = np.array([v.kind is Kind.MAGNITUDE for v in table])
+        self._dot_of = {v.source: v.index for v in table if v.kind is Kind.CHANGE}
         self._real_idx = np.array([v.index for v in table
                                    if v.kind in (Kind.MOTOR, Kind.MAGNITUDE)], dtype=int)
         self._rebuild()
@@ -273,16 +291,28 @@ class Perception:
                     f"variable {name!r} has non-numeric value {value!r}") from None
         return x
 
-    def perceive(self, step: int, x: np.ndarray, copy: bool = True) -> Percept:
+    def break_history(self) -> None:
+        """A discontinuity: forget the previous values, so that no derivative or event spans
+        the jump (the next step has no direction of change, the one after has no event)."""
+        self.prev_x = np.full(len(self.table), np.nan)
+        self.prev_q = np.full(len(self.table), -1, dtype=np.int64)
+        self._all_seen = False
+
+    def perceive(self, step: int, x: np.ndarray, copy: bool = True,
+                 discontinuity: bool = False) -> Percept:
         """Turn the real vector of one step into qualitative values and events.
 
+        ``discontinuity``: the world jumped since the previous step (:meth:`break_history`).
         Raises :class:`InvalidObservation` naming the variable if an available value is NaN or
         infinite, or a nominal value is not one of its indices; the state is then unchanged.
         """
         x = np.array(x, dtype=float) if copy else x
         finite = self._validate(step, x)
-        # Direction of change per agent step (§3.1): ṽ(t) − ṽ(t−1).
-        x[self._change_idx] = x[self._change_src] - self.prev_x[self._change_src]
+        if discontinuity:
+            self.break_history()
+        # Direction of change per second (§3.1, Tables 8.7–8.10).
+        x[self._change_idx] = (x[self._change_src] - self.prev_x[self._change_src]) \
+            / self.params.step_seconds
         if finite and self._all_seen:
             q = self._quantize_row(x)
         else:
@@ -301,7 +331,7 @@ class Perception:
             ids = ev_vars
             events = ()
         self._remember(x, q)
-        return Percept(step, x, q, events, ids)
+        return Percept(step, x, q, events, ids, discontinuity)
 
     def _remember(self, x: np.ndarray, q: np.ndarray) -> None:
         """The step's values become the previous ones and enter the bounded history."""
@@ -323,8 +353,10 @@ class Perception:
         off, mult = self.events.offset, self.events.mult
         ids = np.array([off[e.var] + e.value * mult[e.var] + (1 if e.direction < 0 else 0)
                         for e in p.events], dtype=np.int64)
+        if p.discontinuity:
+            self.break_history()
         self._remember(x, q)
-        return Percept(p.step, x, q, p.events, ids)
+        return Percept(p.step, x, q, p.events, ids, p.discontinuity)
 
     def _validate(self, step: int, x: np.ndarray) -> bool:
         """Check one row; returns True when every world variable is present and finite."""
@@ -378,15 +410,32 @@ class Perception:
 
     def bin_size(self, var: int) -> float:
         """Bin size for ṽ: twice the average change (§4.4.2) over the stored history; a change
-        counts when |ṽ(t) − ṽ(t−1)| > 0.001. 0 if it never changed."""
+        counts when |ṽ(t) − ṽ(t−1)| > 0.001. 0 if it never changed. A magnitude's changes are
+        read from its direction of change, which is undefined across a discontinuity, so a
+        replaced block's jump is not a change."""
         cache = self._history_cache().setdefault("bin_size", {})
         b = cache.get(var)
         if b is None:
             hx, _ = self.history()
-            d = np.abs(np.diff(hx[:, var]))
+            dot = self._dot_of.get(var)
+            if dot is not None:
+                d = np.abs(hx[:, dot]) * self.params.step_seconds
+                d = d[~np.isnan(d)]
+            else:
+                d = np.abs(np.diff(hx[:, var]))
             d = d[d > self.params.change_epsilon]
             b = cache[var] = 2.0 * float(d.mean()) if len(d) else 0.0
         return b
+
+    def resolution(self, var: int) -> float:
+        """The smallest distinction worth a landmark on ``var``: a motor's
+        ``Params.motor_resolution`` of its range; a magnitude's average change per step (half
+        the §4.4.2 bin). No learned landmark is narrower, and none closer to another
+        (docs/decisions.md)."""
+        v = self.table[var]
+        if v.kind is Kind.MOTOR:
+            return self.params.motor_resolution * (float(v.high) - float(v.low))
+        return 0.5 * self.bin_size(var)
 
     def satisfied_fraction(self) -> np.ndarray:
         """Fraction of the stored history's steps in which each consequent event was satisfied

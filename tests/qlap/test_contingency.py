@@ -77,7 +77,7 @@ def test_window_learner_average_delay():
     t = 0
     for _ in range(40):
         wl.update(t, [(0, 7)], [])
-        wl.update(t + 2, [], [3])
+        wl.update(t + 2, [], [(5, 3)])
         t += 10
     wl.update(t, [(0, 7)], [])                        # closes the 40th episode
     found = wl.learnable(30, 0.05, 1.0, 0.8)
@@ -85,3 +85,76 @@ def test_window_learner_average_delay():
     e1, e2, k_r = found[0]
     assert (e1, e2) == (7, 3)
     assert k_r == 3.0                                   # t' - t + 1
+
+
+def test_window_learner_credits_only_the_first_change_of_a_variable():
+    """A reversal later in the hold (the hand bouncing at its limit) is not the command's
+    transition: E2 = x.dot→[+] (id 4) at delay 2, then x.dot→[−] (id 3) at delay 9 of the same
+    variable (5); the reversal pair gets no success."""
+    wl = WindowLearner([0], history=1000)
+    t = 0
+    for _ in range(40):
+        wl.update(t, [(0, 7)], [])
+        wl.update(t + 1, [], [(5, 4)])
+        wl.update(t + 8, [], [(5, 3)])
+        t += 20
+    wl.update(t, [(0, 7)], [])
+    assert sum(wl.delays[(7, 4)]) == 40 and (7, 3) not in wl.delays
+    assert [(e1, e2, k) for e1, e2, k in wl.learnable(30, 0.05, 1.0, 0.8)] == [(7, 4, 2.0)]
+
+
+def test_window_learner_change_to_zero_marks_the_variable():
+    """x.dot→[0] (−1) is a change of the variable but not a consequent: a later [+] on the same
+    variable in the same episode is not credited."""
+    wl = WindowLearner([0], history=1000)
+    wl.update(0, [(0, 7)], [])
+    wl.update(1, [], [(5, -1)])
+    wl.update(3, [], [(5, 4)])
+    assert wl.delays == {}
+
+
+def test_window_learner_late_successes_do_not_count_against_a_k_r_window():
+    """Appendix C: the pair is tested with k_r as its window. E2 happens every 8 steps whatever
+    the motor does; holds last 40 steps, so the first E2 of a hold comes at delays 1..8
+    (mean 4.5 -> k_r = 4 with round-half-even, 5 of 8 phases within it... computed below).
+    Counting every hold as a success (40 of 40 against a base rate of k_r/8) passed the test
+    before; counting only successes within k_r gives Pr(soon | E1) = base rate: not learnable."""
+    wl = WindowLearner([0], history=10_000)
+    t = 0
+    for i in range(64):                       # hold starts at every phase of the 8-step cycle
+        wl.update(t, [(0, 7)], [])
+        for tt in range(t, t + 40):
+            if tt % 8 == 7:
+                wl.update(tt, [], [(5, 4)])
+        t += 40 + (i % 8) + 1
+    wl.update(t, [(0, 7)], [])
+    hist = wl.delays[(7, 4)]
+    assert sum(hist) == 64 and len(hist) == 8 and min(hist) > 0       # delays 1..8 all seen
+    mean = sum((d + 1) * c for d, c in enumerate(hist)) / 64
+    k_r = round(mean)
+    within = sum(hist[:k_r]) / 64
+    assert abs(within - k_r / 8) < 0.1          # about the base rate: no contingency
+    assert wl.learnable(30, 0.05, 1.0, 0.8) == []
+
+
+def test_learner_learns_k_from_a_delayed_effect_in_a_two_motor_world():
+    """A toy world with two motors: u1 moves x three steps after it is set (delay t' − t + 1 = 4),
+    u2 does nothing. Babbling (App. E) on both; Appendix C must give k = 4, not a window
+    stretched by u2's chance pairs or by the holds."""
+    from qlap_runtime.qlap.babble import Babbler
+    from qlap_runtime.qlap.learner import ModelLearner
+
+    specs = [Spec("u1", "motor", -1.0, 1.0), Spec("u2", "motor", -1.0, 1.0),
+             Spec("x", "magnitude")]
+    params = Params()
+    learner = ModelLearner(specs, params)
+    babbler = Babbler(learner.table, params, np.random.default_rng(3))
+    x, pending = 0.0, [0.0, 0.0, 0.0]                # u1 acts on x three steps later
+    motor = {"u1": 0.0, "u2": 0.0}
+    for t in range(4001):
+        learner.observe(t, {"u1": motor["u1"], "u2": motor["u2"], "x": x})
+        motor, _ = babbler.step()
+        pending.append(motor["u1"])
+        x += 0.5 * pending.pop(0)
+    assert learner.k_learned
+    assert learner.k == 4
