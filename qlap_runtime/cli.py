@@ -102,6 +102,48 @@ def build_parser() -> argparse.ArgumentParser:
                     help="qlap (the checkpoint's agent) or random (the random-motor baseline)")
     ev.add_argument("--json", action="store_true", help="print the result as JSON")
 
+    curve = sub.add_parser(
+        "curve", help="evaluate every checkpoint of runs on a task: curve.csv and curve.png",
+        description="Evaluate every checkpoint of each RUN_DIR (checkpoints/step-NNNNNNN/, "
+                    "and final unless a step-N has its step) on TASK with the protocol of "
+                    "`qlap eval` (§7.2), in parallel worker processes, and the random policy "
+                    "on the same world, task, trials and seed. Writes curve.csv (resumable: "
+                    "evaluations already there are not recomputed) and curve.png (mean reward "
+                    "against steps with standard-error bars, the random policy dashed; several "
+                    "runs: their mean and the standard error across them, as Figs. 7.2–7.4). "
+                    "See docs/analysis.md.")
+    curve.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
+                       help="run directories written by `qlap run --out` (several: seeds, "
+                            "drawn as their mean)")
+    curve.add_argument("--task", required=True,
+                       help="task name, e.g. move_block, hit_floor, pickup")
+    curve.add_argument("--trials", type=_positive, default=100,
+                       help="trials per checkpoint (default: 100)")
+    curve.add_argument("--jobs", type=_positive, default=None,
+                       help="worker processes (default: os.cpu_count())")
+    curve.add_argument("--seed", type=int, default=0,
+                       help="seed of the trials, the same set-ups for every checkpoint "
+                            "(default: 0)")
+    curve.add_argument("--out", type=Path, default=None,
+                       help="where curve.csv and curve.png go (default: RUN_DIR; required "
+                            "with several runs)")
+    curve.add_argument("--world", default=None,
+                       help="world spec, when the checkpoints do not record theirs (default: "
+                            "the world of RUN_DIR/summary.json)")
+
+    report = sub.add_parser(
+        "report", help="what runs know, beside the reference's figures (ch. 8)",
+        description="Print the knowledge figures of a learning run for each run (its knowledge.json, "
+                    "or its latest checkpoint) beside the reference's: window k, change and "
+                    "magnitude DBNs, landmarks per variable, values narrower than the "
+                    "resolution, the u_x friction landmarks, rel(a) of a(ḣ_x,[+]), "
+                    "a(Ṫ_L,[+]) and a(T,true) with their plans. Several runs: one column "
+                    "each and the mean. See docs/analysis.md.")
+    report.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
+                        help="run directories (or agent checkpoint directories)")
+    report.add_argument("--json", action="store_true",
+                        help="print the figures as JSON (reference, runs, mean)")
+
     snap = sub.add_parser("snapshot", help="render a world to a PNG (MuJoCo offscreen)",
                           description="Render a world's scene to a PNG file.")
     snap.add_argument("--world", default="core")
@@ -167,6 +209,8 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_show(args)
         if args.command == "eval":
             return _cmd_eval(args)
+        if args.command in ("curve", "report"):
+            return _cmd_analysis(args)
         if args.command == "snapshot":
             from worlds.snapshot import main_snapshot
 
@@ -401,20 +445,12 @@ def _cmd_actor(args: argparse.Namespace) -> int:
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    from .qlap.checkpoint import CheckpointError, load_agent
+    from .analysis.runs import AnalysisError, load_knowledge
 
-    path: Path = args.path
-    if (path / "knowledge.json").exists():
-        knowledge = json.loads((path / "knowledge.json").read_text())
-    elif (path / "agent.json").exists():
-        try:
-            knowledge = load_agent(path).knowledge()
-        except CheckpointError as exc:
-            print(f"qlap show: {exc}", file=sys.stderr)
-            return 2
-    else:
-        print(f"qlap show: {path} holds neither knowledge.json nor an agent checkpoint",
-              file=sys.stderr)
+    try:
+        knowledge = load_knowledge(args.path)
+    except AnalysisError as exc:
+        print(f"qlap show: {exc}", file=sys.stderr)
         return 2
     print(format_knowledge(knowledge, show_all=args.all))
     return 0
@@ -443,6 +479,23 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         print(f"{res['world']} {res['task']} ({res['policy']}, {res['n_trials']} trials): "
               f"mean reward {res['mean_reward']:.3f} ± {res['stderr_reward']:.3f} (s.e.), "
               f"success rate {res['success_rate']:.2f}")
+    return 0
+
+
+def _cmd_analysis(args: argparse.Namespace) -> int:
+    """``qlap curve`` and ``qlap report`` (qlap_runtime/analysis, docs/analysis.md)."""
+    from .analysis import AnalysisError
+    from .analysis.curve import main_curve
+    from .analysis.report import main_report
+
+    try:
+        if args.command == "curve":
+            return main_curve(args.runs, args.task, args.trials, args.jobs, args.seed,
+                              args.out, args.world, echo=lambda s: print(s, flush=True))
+        print(main_report(args.runs, as_json=args.json))
+    except AnalysisError as exc:
+        print(f"qlap {args.command}: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 
