@@ -119,7 +119,8 @@ async def run(session, ctx: RunContext) -> dict:
                     if not msg.rejected:
                         display.publish(agent, deltas, commands.rc)
                         if ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
-                            save_agent(agent, Path(ctx.out) / "checkpoints" / f"step-{t + 1:07d}")
+                            save_agent(agent, Path(ctx.out) / "checkpoints" / f"step-{t + 1:07d}",
+                                       ctx.world)
                     if snapshot_due(ctx, t):
                         snapshot_s.append(write_snapshot(ctx, NAME, t, deltas,
                                                          lambda d: save_agent(agent, d),
@@ -142,7 +143,7 @@ async def run(session, ctx: RunContext) -> dict:
     if ctx.out is not None:
         out = Path(ctx.out)
         atomic_write_json(out / "knowledge.json", agent.knowledge())
-        save_agent(agent, out / "checkpoints" / "final")
+        save_agent(agent, out / "checkpoints" / "final", ctx.world)
         from qlap_runtime.agent_run import summary_of
 
         summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed,

@@ -77,6 +77,7 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     obs = world.reset(seed=seed)
     motor = dict(agent.motor)
     rejected: list[str] = []
+    world_spec = getattr(world, "spec", None) or getattr(world, "name", None)
     start = agent.step_count + 1
     t0 = time.perf_counter()
     for t in range(start, start + steps):
@@ -88,14 +89,14 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
         if progress is not None:
             progress(t, agent)
         if out is not None and (t + 1) % checkpoint_every == 0:
-            save_agent(agent, Path(out) / "checkpoints" / f"step-{t + 1:07d}")
+            save_agent(agent, Path(out) / "checkpoints" / f"step-{t + 1:07d}", world_spec)
     wall = time.perf_counter() - t0
     summary = summary_of(agent, world, seed, steps, wall, rejected)
     if out is not None:
         out = Path(out)
         atomic_write_json(out / "knowledge.json", agent.knowledge())
         atomic_write_json(out / "summary.json", summary)
-        save_agent(agent, out / "checkpoints" / "final")
+        save_agent(agent, out / "checkpoints" / "final", world_spec)
     return agent, summary
 
 
@@ -105,13 +106,46 @@ def goal_index(agent: Agent, goal: Any) -> tuple[int, int]:
     return agent.set_goal(var, goal.value)
 
 
+def goal_policy(agent: Agent, world: Any, task_name: str
+                ) -> Callable[[Any, Mapping[str, float], Any, np.random.Generator],
+                              Mapping[str, float]]:
+    """The agent as a policy for ``worlds.evaluate.run_trials`` (§7.2.1), learning off.
+
+    A trial starts (world step 0) with :meth:`Agent.new_episode` (motors at rest, histories
+    broken); the world's own discontinuities (``World.discontinuity``) are passed on; the goal
+    is set whenever the task's goal changes. With ``agent.learning`` False nothing the agent
+    has learned changes (tests/qlap/test_agent.py).
+    """
+    if task_name not in world.tasks:
+        raise ValueError(f"{world.name} has no task {task_name!r}; "
+                         f"tasks: {sorted(world.tasks)}")
+    task = world.tasks[task_name]
+    idle = "zero" if task.hold_motors_at_zero_without_plan else "babble"
+    agent.learning = False
+    state: dict[str, Any] = {"t": agent.step_count, "goal": None}
+
+    def qlap_policy(w: Any, obs: Mapping[str, float], goal: Any,
+                    rng: np.random.Generator) -> Mapping[str, float]:
+        if w.step_count == 0:                           # a new trial
+            agent.new_episode()
+            state["goal"] = None
+        if goal != state["goal"]:
+            state["goal"] = goal
+            agent.set_goal(agent.table.index(goal.variable), goal.value, idle=idle)
+        state["t"] += 1
+        return agent.step(int(state["t"]), obs,
+                          discontinuity=bool(getattr(w, "discontinuity", False)))
+
+    return qlap_policy
+
+
 def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, seed: int,
              policy: str = "qlap") -> dict[str, Any]:
     """The §7.2 protocol: ``trials`` trials of a task with the agent in goal mode.
 
-    Learning is off during evaluation, so every trial uses the checkpoint's knowledge. A trial
-    in which the agent has no plan for the goal moves randomly (or holds the motors at 0 when
-    the task says so, §7.9.1).
+    Learning is off during evaluation, so every trial uses the checkpoint's knowledge
+    unchanged (:func:`goal_policy`). A trial in which the agent has no plan for the goal moves
+    randomly (or holds the motors at rest when the task says so, §7.9.1).
     """
     from worlds.evaluate import run_random_trials, run_trials
 
@@ -119,26 +153,7 @@ def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, se
         res = run_random_trials(world, task_name, trials, seed)
     elif policy == "qlap":
         agent = load_agent(checkpoint)
-        agent.learning = False
-        if task_name not in world.tasks:
-            raise ValueError(f"{world.name} has no task {task_name!r}; "
-                             f"tasks: {sorted(world.tasks)}")
-        task = world.tasks[task_name]
-        idle = "zero" if task.hold_motors_at_zero_without_plan else "babble"
-        state = {"t": agent.step_count, "goal": None}
-
-        def qlap_policy(w: Any, obs: Mapping[str, float], goal: Any,
-                        rng: np.random.Generator) -> Mapping[str, float]:
-            if w.step_count == 0:                           # a new trial
-                agent.new_episode()
-                state["goal"] = None
-            if goal != state["goal"]:
-                state["goal"] = goal
-                agent.set_goal(agent.table.index(goal.variable), goal.value, idle=idle)
-            state["t"] += 1
-            return agent.step(int(state["t"]), obs)
-
-        res = run_trials(world, task_name, trials, seed, qlap_policy)
+        res = run_trials(world, task_name, trials, seed, goal_policy(agent, world, task_name))
     else:
         raise ValueError(f"policy must be 'qlap' or 'random', got {policy!r}")
     rewards = np.asarray(res["rewards"], dtype=float)

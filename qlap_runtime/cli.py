@@ -133,7 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     report = sub.add_parser(
         "report", help="what runs know, beside the reference's figures (ch. 8)",
-        description="Print the knowledge figures of a learning run for each run (its knowledge.json, "
+        description="Print the knowledge figures of each run (its knowledge.json, "
                     "or its latest checkpoint) beside the reference's: window k, change and "
                     "magnitude DBNs, landmarks per variable, values narrower than the "
                     "resolution, the u_x friction landmarks, rel(a) of a(ḣ_x,[+]), "

@@ -10,7 +10,8 @@ Pure bookkeeping: counts and decisions, no planning and no world access.
 * :func:`plan_slots` — the §6.2.2 rule: at most three plans, replacement and removal.
 * :class:`ActionTable` — one :class:`ActionStats` per qualitative value of every variable
   (§5.1), re-keyed when a variable gains a landmark.
-* :func:`motor_value` / :func:`motor_value_for` — a random motor value within a value (§5.5).
+* :func:`motor_value` / :func:`motor_value_for` — a random motor value within a value (§5.5);
+  :func:`motor_reachable` — whether the value meets the motor's range at all; :func:`rest_value`.
 * :func:`is_self` — §6.4 and Appendix A; :func:`targeted`, :func:`theta_pen_for`,
   :func:`theta_sr_for` — targeted learning (§6.3).
 """
@@ -141,6 +142,11 @@ class PlanStats:
     calls: int = 0
     successes: int = 0
     failures: int = 0
+    reliable: bool = False
+    """Sticky: brel(o) of the plan's second-order model r_o² was > θ_SR at some time (§5.4.1,
+    "a plan can also be sufficiently reliable if at any time brel(o) > θ_SR")."""
+    age: int = 0
+    """Steps since the plan was created."""
 
     def record(self, success: bool) -> None:
         """Count one termination of the plan."""
@@ -162,15 +168,18 @@ class PlanStats:
         p = params if params is not None else _DEFAULT_PARAMS
         return success_probability(self.successes, self.failures, p.prior_plan_replace)
 
-    def sufficiently_reliable(self, params: Params) -> bool:
-        """Beta test rel(o) > θ_SR with the standard prior (App. B item 2)."""
-        return prob_above(params.theta_sr, self.successes, self.failures, prior=params.prior,
-                          confidence=params.beta_confidence)
+    def sufficiently_reliable(self, params: Params | None = None) -> bool:
+        """The sticky brel(o) > θ_SR flag (§5.4.1); set by the planner from r_o²."""
+        return self.reliable
 
     def eligible_for_replacement(self, params: Params) -> bool:
-        """Called more than 30 times and not sufficiently reliable (§6.2.2)."""
-        return self.calls > params.plan_replace_min_calls and not self.sufficiently_reliable(
-            params)
+        """Not sufficiently reliable, and called more than 30 times (§6.2.2) — or, with fewer
+        calls, created at least ``Params.dbn_max_age`` steps ago (our reading: a plan that is
+        almost never called must not hold its slot for ever; the age of §6.2.3, see
+        docs/decisions.md)."""
+        if self.reliable:
+            return False
+        return self.calls > params.plan_replace_min_calls or self.age >= params.dbn_max_age
 
     def should_remove(self, params: Params) -> bool:
         """rel(o) (prior 1) < 0.05 after at least ``plan_replace_min_calls`` calls (§6.2.2).
@@ -182,11 +191,13 @@ class PlanStats:
                 and self.rel(params.prior) < params.plan_remove_below)
 
     def to_json(self) -> dict:
-        return {"calls": self.calls, "successes": self.successes, "failures": self.failures}
+        return {"calls": self.calls, "successes": self.successes, "failures": self.failures,
+                "reliable": self.reliable, "age": self.age}
 
     @classmethod
     def from_json(cls, data: dict) -> PlanStats:
-        return cls(int(data["calls"]), int(data["successes"]), int(data["failures"]))
+        return cls(int(data["calls"]), int(data["successes"]), int(data["failures"]),
+                   bool(data.get("reliable", False)), int(data.get("age", 0)))
 
 
 @dataclass(frozen=True)
@@ -211,9 +222,10 @@ def plan_slots(plans: Sequence[PlanStats], params: Params,
     """The §6.2.2 rule for an action's current plans (indices into ``plans``).
 
     Plans with rel(o) < 0.05 are removed first. At most ``max_plans_per_action`` remain; if the
-    action is full, the plan with the lowest rel(o) (prior 0) among those called more than 30
-    times and not sufficiently reliable may be replaced (ties: the lower index). If no plan
-    qualifies, nothing is replaced. A sufficiently reliable ``action`` gets no new plans at all
+    action is full, the plan with the lowest rel(o) (prior 0) among those eligible
+    (:meth:`PlanStats.eligible_for_replacement`: called more than 30 times, or old, and never
+    sufficiently reliable) may be replaced (ties: the lower index). If no plan qualifies,
+    nothing is replaced. A sufficiently reliable ``action`` gets no new plans at all
     (§6.2.1 item 2), though removal still applies.
     """
     remove = tuple(i for i, o in enumerate(plans) if o.should_remove(params))
@@ -234,24 +246,42 @@ def plan_slots(plans: Sequence[PlanStats], params: Params,
 # ---------------------------------------------------------------------------------------------
 
 
+def motor_interval(var_low: float | None, var_high: float | None, lo: float, hi: float,
+                   *, landmark: bool = False) -> tuple[float, float] | None:
+    """Where a motor action a(u, q) can put u: q ∩ [var_low, var_high] (§5.5), or None if the
+    value is out of the motor's reach (empty, an open interval touching the range only at its
+    excluded endpoint, or unbounded)."""
+    vlo = -math.inf if var_low is None else float(var_low)
+    vhi = math.inf if var_high is None else float(var_high)
+    a, b = max(lo, vlo), min(hi, vhi)
+    if a > b or (not landmark and a == b and not lo < a < hi):
+        return None
+    if a != b and not (math.isfinite(a) and math.isfinite(b)):
+        return None
+    return a, b
+
+
 def motor_value(var_low: float | None, var_high: float | None, lo: float, hi: float,
                 rng: np.random.Generator, *, landmark: bool = False) -> float:
     """A random motor value in qualitative value [lo, hi] ∩ [var_low, var_high] (§5.5, Alg. 6).
 
     ``landmark`` values are closed ranges [lb, ub] (a point landmark returns lb exactly, no
     random draw); open intervals (lo, hi) never return an endpoint. ``None`` motor bounds are
-    unbounded. Raises ValueError if the intersection is empty or unbounded.
+    unbounded. Raises ValueError if the intersection is empty or unbounded (see
+    :func:`motor_interval`; the agent never calls such an action, :func:`motor_reachable`).
     """
-    vlo = -math.inf if var_low is None else float(var_low)
-    vhi = math.inf if var_high is None else float(var_high)
-    a, b = max(lo, vlo), min(hi, vhi)
-    if a > b or (not landmark and a == b and not lo < a < hi):
+    ab = motor_interval(var_low, var_high, lo, hi, landmark=landmark)
+    if ab is None:
+        vlo = -math.inf if var_low is None else float(var_low)
+        vhi = math.inf if var_high is None else float(var_high)
         kind = f"landmark [{lo}, {hi}]" if landmark else f"interval ({lo}, {hi})"
+        a, b = max(lo, vlo), min(hi, vhi)
+        if a < b:
+            raise ValueError(f"unbounded motor range for ({lo}, {hi}) ∩ [{vlo}, {vhi}]")
         raise ValueError(f"{kind} does not meet the motor range [{vlo}, {vhi}]")
+    a, b = ab
     if a == b:
         return float(a)
-    if not (math.isfinite(a) and math.isfinite(b)):
-        raise ValueError(f"unbounded motor range for ({lo}, {hi}) ∩ [{vlo}, {vhi}]")
     x = float(rng.uniform(a, b))
     if not landmark and (x <= lo or x >= hi):   # open interval: an endpoint is the landmark
         x = 0.5 * (a + b)
@@ -264,6 +294,26 @@ def motor_value_for(space: QuantitySpace, q: int, var_low: float | None,
     lo, hi = space.bounds(q)
     return motor_value(var_low, var_high, lo, hi, rng,
                        landmark=QuantitySpace.is_landmark_value(q))
+
+
+def motor_reachable(space: QuantitySpace, q: int, var_low: float | None,
+                    var_high: float | None) -> bool:
+    """Can a(u, q) be performed at all: does value ``q`` meet the motor's range (§5.5)?
+
+    A motor whose range does not straddle a landmark has values it can never take (u_UG in
+    [0, 1] below a landmark at 0); such an action is not applicable in any plan and fails
+    when called, instead of stopping the control loop.
+    """
+    lo, hi = space.bounds(q)
+    return motor_interval(var_low, var_high, lo, hi,
+                          landmark=QuantitySpace.is_landmark_value(q)) is not None
+
+
+def rest_value(var_low: float | None, var_high: float | None) -> float:
+    """A motor's rest value: 0, or the value of its range nearest to 0 (§6.1.1 rest posture)."""
+    lo = -math.inf if var_low is None else float(var_low)
+    hi = math.inf if var_high is None else float(var_high)
+    return float(min(max(0.0, lo), hi))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -20,7 +20,15 @@ from typing import Any
 
 import numpy as np
 
-from .actions import ActionKey, ActionTable, motor_value_for, plan_slots, targeted
+from .actions import (
+    ActionKey,
+    ActionTable,
+    motor_reachable,
+    motor_value_for,
+    plan_slots,
+    rest_value,
+    targeted,
+)
 from .babble import Babbler
 from .curiosity import (
     IACChoice,
@@ -32,7 +40,17 @@ from .curiosity import (
 )
 from .dbn import CHANGE, DBN, model_stats
 from .learner import ModelLearner
-from .mdp import Role, greedy_action, sarsa_reward
+from .mdp import (
+    MDPAction,
+    PlanStateSpace,
+    Role,
+    action_map,
+    compose_split_maps,
+    descendant_state,
+    greedy_action,
+    sarsa_reward,
+    space_value_maps,
+)
 from .params import Params
 from .perception import Percept
 from .planner import Plan, PlanTooLarge, creates_cycle, dbn_rel_state, plan_entries
@@ -121,12 +139,16 @@ class Agent:
         self.next_plan_id = 0
         self.call_list: list[Frame] = []
         self.motors = self.table.of_kind(Kind.MOTOR)
-        self.motor = {m.name: 0.0 for m in self.motors}
+        self.rest = {m.name: rest_value(m.low, m.high) for m in self.motors}
+        """Rest posture: each motor at 0, or the value of its range nearest to 0."""
+        self.motor = dict(self.rest)
         self.mode = "babble"          # babble | command | practice | hold | goal | idle
         self.hold_until = -1
         self.goal: ActionKey | None = None
         self.goal_idle = "babble"      # what goal mode does with no plan: babble | zero
         self.learning = True
+        """False: evaluation (§7.2). Nothing learned changes: no statistics of actions and
+        plans, no Sarsa, no Dyna, no model learning (the learner only perceives)."""
         self.iac_log: deque[IACChoice] = deque(maxlen=200)
         self.counters = AgentCounters()
         self.self_vars: set[int] = set()
@@ -137,15 +159,22 @@ class Agent:
     # ------------------------------------------------------------------------------------------
     # Algorithm 2, one step
     # ------------------------------------------------------------------------------------------
-    def step(self, t: int, obs: Mapping[str, float]) -> dict[str, float]:
-        """Sense step t (the world's values), learn, and return the motor command of step t."""
+    def step(self, t: int, obs: Mapping[str, float],
+             discontinuity: bool = False) -> dict[str, float]:
+        """Sense step t (the world's values), learn, and return the motor command of step t.
+
+        ``discontinuity``: the world jumped since step t − 1 (a replaced block, a new trial);
+        no derivative, event or learning window spans it (the learner's business), and the
+        running call list ends unrecorded (:meth:`decide`).
+        """
         full = dict(obs)
         full.update(self.motor)
         if self.learning:
-            p = self.learner.observe(t, full)
+            p = self.learner.observe(t, full, discontinuity=discontinuity)
         else:
             x = self.learner.perception.vector(full)
-            p = self.learner.perception.perceive(t, x, copy=False)
+            p = self.learner.perception.perceive(t, x, copy=False, discontinuity=discontinuity,
+                                                 remember=False)
         return self.decide(p)
 
     def decide(self, p: Percept) -> dict[str, float]:
@@ -153,9 +182,11 @@ class Agent:
         knowledge (Algorithm 2 line 15), then the executor chooses the motor command."""
         self.step_count = p.step
         self._last_percept = p
+        if p.discontinuity and self.call_list:
+            self._interrupt()                   # the world moved, not the agent's actions
         if self.learner.applied_count != self._seen_applied:
             self._seen_applied = self.learner.applied_count
-            self._after_batch(p.step)
+            self._after_batch(p)
         self._act(p)
         return dict(self.motor)
 
@@ -165,15 +196,22 @@ class Agent:
     def _sizes(self) -> list[int]:
         return list(self.learner.perception.events.sizes)
 
-    def _after_batch(self, t: int) -> None:
+    def _after_batch(self, p: Percept) -> None:
+        """Plans follow a batch's knowledge (§5.2–5.4, §6.2); the call list keeps running
+        unless a plan in it was removed or an action in it lost its meaning (docs/decisions.md).
+        """
+        t = p.step
         splits, self.learner.splits = self.learner.splits, []
-        if splits and self.call_list:
-            self._interrupt()
+        sizes = self._sizes()
+        value_maps = compose_split_maps(splits, sizes) if splits else {}
+        cut = self._renumber_frames(splits, sizes)
         for var, split in splits:
             self.actions.on_landmark(var, split)
             if self.goal is not None and self.goal[0] == var and self.goal[1] > split:
                 self.goal = (var, self.goal[1] + 2)
-        self.actions.sync(self._sizes())
+        self.actions.sync(sizes)
+        if cut is not None:
+            self._end_frames(cut)
         # Plans whose DBN disappeared are removed; the others follow their DBN's structure.
         for pid in sorted(self.plans):
             plan = self.plans[pid]
@@ -182,17 +220,93 @@ class Agent:
                 self._remove_plan(pid)
         self._update_plan_contexts()
         self._convert_dbns_to_plans(t)
-        changed = set()
         for pid in sorted(self.plans):
+            plan = self.plans[pid]
+            old_space, old_actions = plan.space, plan.actions
             try:
-                if self._rebuild(self.plans[pid]):
-                    changed.add(pid)
+                changed = self._rebuild(plan, value_maps=value_maps)
             except PlanTooLarge:
                 self._remove_plan(pid)                  # outgrew Params.max_plan_entries
-                changed.add(pid)
-        if changed & {f.plan_id for f in self.call_list}:
-            self._interrupt()
+                continue
+            if changed and old_space is not None:
+                self._follow_structure(plan, old_space, old_actions, value_maps, p)
         self._update_self()
+
+    def _renumber_frames(self, splits: list[tuple[int, int]], sizes: list[int]) -> int | None:
+        """Landmarks renumbered values (§4.4): shift the values the frames hold. A motor frame
+        whose interval was split takes the part holding its commanded value; a frame whose goal
+        interval was split has lost its meaning: the index of the first such frame, else None.
+        """
+        cut: int | None = None
+        split_vars = set()
+        for var, split in splits:
+            split_vars.add(var)
+            for i, f in enumerate(self.call_list):
+                v, q = f.key
+                if v != var:
+                    continue
+                if q > split:
+                    f.key = (v, q + 2)
+                elif q == split and not f.is_motor:
+                    cut = i if cut is None else min(cut, i)
+        for f in self.call_list:
+            if f.is_motor and f.key[0] in split_vars:
+                name = self.table[f.key[0]].name
+                f.key = (f.key[0], self.learner.perception.spaces[f.key[0]].value_of(
+                    self.motor[name]))
+        return cut
+
+    def _follow_structure(self, plan: Plan, old_space: PlanStateSpace,
+                          old_actions: list[MDPAction], value_maps: dict[int, np.ndarray],
+                          p: Percept) -> None:
+        """The plan's space or actions changed under its running frame: carry the frame's
+        current sub-action and its state to the new indices (:func:`~.mdp.descendant_state`).
+        When that cannot be done the pending Sarsa update is dropped, and a running sub-action
+        that is no longer an action of the plan ends (the plan then chooses again)."""
+        i = next((j for j, f in enumerate(self.call_list) if f.plan_id == plan.id), None)
+        if i is None:
+            return
+        f = self.call_list[i]
+        assert plan.space is not None
+        s_now = plan.space.index_from_full(p.q)
+        f.last_sig = (s_now, *(int(p.q[v]) for v in sorted(self.self_vars)))
+        if f.sub < 0:
+            return
+        child = self.call_list[i + 1] if i + 1 < len(self.call_list) else None
+        maps = space_value_maps(old_space, plan.space, value_maps)
+        new_sub: int | None = None
+        if maps is not None:
+            old_act = old_actions[f.sub]
+            cands = np.flatnonzero(action_map(old_actions, plan.actions, maps) == f.sub)
+            if old_act.role is Role.WAIT or child is None:
+                new_sub = int(cands[0]) if cands.size == 1 else None
+            else:
+                match = [int(j) for j in cands
+                         if (plan.actions[j].var, plan.actions[j].value) == child.key]
+                new_sub = match[0] if match else None
+        if new_sub is None:
+            f.sub = -1
+            if child is not None and (child.key[0], child.key[1]) not in \
+                    {(a.var, a.value) for a in plan.actions}:
+                self._end_frames(i + 1)
+            return
+        s_old = descendant_state(old_space, plan.space, value_maps, f.sub_state, p.q)
+        f.sub = new_sub
+        if s_old is None or not np.isfinite(plan.q[s_old, new_sub]):
+            f.sub_state = -1                            # no Sarsa update for this one
+        else:
+            f.sub_state = s_old
+
+    def _end_frames(self, i: int) -> None:
+        """End frames i, i + 1, … without recording (knowledge changed under them); the frame
+        above chooses its next action, without a Sarsa update for the ended one."""
+        if i <= 0:
+            self._interrupt()
+            return
+        del self.call_list[i:]
+        parent = self.call_list[i - 1]
+        parent.sub = -1
+        self.counters.call_list_interrupts += 1
 
     def _interrupt(self) -> None:
         """Knowledge changed under the running call list: end it without recording."""
@@ -207,11 +321,21 @@ class Agent:
         key = (var, value)
         return self.actions[key].rel(self.params.prior) if key in self.actions else 0.5
 
-    def _rebuild(self, plan: Plan, fresh: bool = False) -> bool:
+    def _usable(self, var: int, value: int) -> bool:
+        """a(var, value) can be performed at all: a motor value must meet the motor's range
+        (§5.5); an action that cannot is not applicable in any plan."""
+        v = self.table[var]
+        if v.kind is not Kind.MOTOR:
+            return True
+        return motor_reachable(self.learner.perception.spaces[var], value, v.low, v.high)
+
+    def _rebuild(self, plan: Plan, fresh: bool = False,
+                 value_maps: dict[int, np.ndarray] | None = None) -> bool:
         dbn = self.learner.dbns[plan.dbn_id]
         sizes = self._sizes()
         return plan.build(dbn, sizes, self._rel_action,
-                          dbn_rel_state(dbn, sizes, self.params.prior), fresh=fresh)
+                          dbn_rel_state(dbn, sizes, self.params.prior), fresh=fresh,
+                          value_maps=value_maps, usable=self._usable)
 
     def _refresh(self, plan: Plan) -> None:
         dbn = self.learner.dbns.get(plan.dbn_id)
@@ -235,6 +359,7 @@ class Agent:
                     plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
                 plan.context_o = before                 # too large a state space: keep C_o
                 plan.recount(quantize, sizes)
+            plan.refresh_reliable()
 
     def _plan_edges(self) -> set[tuple[ActionKey, ActionKey]]:
         edges = set()
@@ -245,26 +370,38 @@ class Agent:
         return edges
 
     def _antecedent_achievable(self, dbn: DBN) -> bool:
-        """§6.2.2 criterion 1: a sufficiently reliable plan achieves the antecedent event."""
+        """§6.2.2 criterion 1 (NRP): "there is a sufficiently reliable plan to achieve the
+        antecedent event", i.e. a plan of a(X, x) whose second-order model had brel(o) > θ_SR
+        (§5.4.1, :meth:`Plan.refresh_reliable`); for ↑X → x (↓X → x) the plan reaching x from
+        below (above). A motor antecedent is always achievable (§5.5). The text states the rule
+        for change DBNs; a magnitude DBN ⟨Ẏ → [±] ⇒ Y → y⟩ needs a plan of a(Ẏ, [±]) (the
+        applicability of magnitude actions, §6.1.1), reliable or not (docs/decisions.md)."""
         if self.params.ablations.nrp:
             return True
         a = dbn.antecedent
         if self.table[a.var].kind is Kind.MOTOR:
             return True
+        on_magnitude = self.table[a.var].kind is Kind.MAGNITUDE
         for plan in self.plans.values():
-            if plan.action == (a.var, a.value):
-                d = self.learner.dbns.get(plan.dbn_id)
-                if d is not None and d.ever_reliable:
-                    return True
+            if plan.action != (a.var, a.value):
+                continue
+            if on_magnitude and plan.goal.direction != a.direction:
+                continue
+            if dbn.kind != CHANGE or plan.ever_reliable:
+                return True
         return False
 
     def _convert_dbns_to_plans(self, t: int) -> None:
-        """Line 15 of Algorithm 2 with the restrictions of §6.2.1–6.2.2 and §6.3."""
+        """Line 15 of Algorithm 2 with the restrictions of §6.2.1–6.2.2 and §6.3.
+
+        The DBNs that qualify compete for the plan slots best first: highest brel, then lowest
+        entropy H(r) (the order of Algorithm 3's measures), then the older DBN.
+        """
         p = self.params
         targeted_mask = targeted(self.learner.perception.satisfied_fraction(), p)
         index = self.learner.perception.events
         dbn_of_plan = {plan.dbn_id for plan in self.plans.values()}
-        edges = self._plan_edges()
+        ranked: list[tuple[tuple[bool, float, float, int], DBN]] = []
         for dbn_id in sorted(self.learner.dbns):
             dbn = self.learner.dbns[dbn_id]
             if dbn_id in dbn_of_plan:
@@ -277,6 +414,12 @@ class Agent:
                 tgt = bool(targeted_mask[cons_id]) if cons_id >= 0 else False
                 if not (dbn.ever_reliable or (tgt and self._reliable_at(dbn, p.theta_sr_targeted))):
                     continue                                          # §5.2, §6.3
+            st = model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), p)
+            ranked.append(((st.brel is None, -(st.brel or 0.0), st.entropy, dbn_id), dbn))
+        ranked.sort(key=lambda r: r[0])
+        edges = self._plan_edges()
+        for _, dbn in ranked:
+            key = (dbn.consequent.var, dbn.consequent.value)
             if not self._antecedent_achievable(dbn):
                 continue
             edge = (key, (dbn.antecedent.var, dbn.antecedent.value))
@@ -289,7 +432,7 @@ class Agent:
                     continue
             else:
                 change_plans = sorted((pl for pl in mine if pl.kind == CHANGE), key=lambda x: x.id)
-                slots = plan_slots([pl.plan_stats() for pl in change_plans], p,
+                slots = plan_slots([pl.plan_stats(t) for pl in change_plans], p,
                                    self.actions[key])
                 for i in slots.remove:
                     self._remove_plan(change_plans[i].id)
@@ -317,7 +460,7 @@ class Agent:
         self.next_plan_id += 1
         self.plans[plan.id] = plan
         dbn.is_plan = True
-        self._rebuild(plan, fresh=True)
+        self._rebuild(plan, fresh=True)                 # plan_entries bounds its size
         self.counters.plans_created += 1
         return plan
 
@@ -326,8 +469,9 @@ class Agent:
         dbn = self.learner.dbns.get(plan.dbn_id)
         if dbn is not None:
             dbn.is_plan = False
-        if any(f.plan_id == pid for f in self.call_list):
-            self._interrupt()
+        i = next((j for j, f in enumerate(self.call_list) if f.plan_id == pid), None)
+        if i is not None:
+            self._end_frames(i)
         self.counters.plans_removed += 1
 
     def _update_self(self) -> None:
@@ -367,15 +511,17 @@ class Agent:
         return self.goal
 
     def new_episode(self) -> None:
-        """A discontinuity in the world (a new trial): forget the running call list and the
-        previous values, so no derivative or event spans the jump."""
+        """A new trial (§7.2.1): forget the goal and the running call list, break the
+        learner's histories (no derivative, event or window spans the jump), put the motors at
+        rest and restart the babbler's hold counters, so nothing commanded in the previous
+        episode (a babbled u_x = 803) is held into this one."""
         self.goal = None
         self.call_list.clear()
         self.mode = "idle"
-        per = self.learner.perception
-        per.prev_x = np.full(len(self.table), np.nan)
-        per.prev_q = np.full(len(self.table), -1, dtype=np.int64)
-        per._all_seen = False
+        self.hold_until = -1
+        self.learner.break_history()
+        self.motor = dict(self.rest)
+        self.babbler.restart()
 
     def clear_goal(self) -> None:
         self.goal = None
@@ -425,7 +571,7 @@ class Agent:
         if status == FAIL:
             self.call_list.clear()
             if self.goal_idle == "zero":
-                self.motor = dict.fromkeys(self.motor, 0.0)
+                self.motor = dict(self.rest)
             else:
                 self.motor, _ = self.babbler.step()
             self.mode = "idle"
@@ -447,7 +593,7 @@ class Agent:
         i = applicable.index(key)
         self.iac_log.append(IACChoice(t, key, float(probs[i]), len(applicable), False,
                                       tuple(float(x) for x in probs)))
-        self.motor = dict.fromkeys(self.motor, 0.0)     # rest posture for a new practice
+        self.motor = dict(self.rest)                    # rest posture for a new practice
         self.counters.practice_calls += 1
         status = self._call(key, p, practised=True)
         if status == FAIL:
@@ -494,13 +640,18 @@ class Agent:
         return int(p.q[key[0]]) == key[1]
 
     def _usable_plans(self, key: ActionKey, p: Percept, plans: list[Plan]) -> list[Plan]:
-        """Plans of a(v, q) usable in this state: magnitude plans from the current side."""
+        """Plans of a(v, q) usable in this state: their state is known (no plan variable
+        without a value, as on the step after a discontinuity), and magnitude plans from the
+        current side."""
         var, q = key
+        known = sorted((pl for pl in plans
+                        if pl.space is not None and pl.space.index_from_full(p.q) is not None),
+                       key=lambda pl: pl.id)
         if self.table[var].kind is not Kind.MAGNITUDE:
-            return sorted(plans, key=lambda pl: pl.id)
+            return known
         now = int(p.q[var])
         side = 1 if now < q else -1
-        return sorted((pl for pl in plans if pl.goal.direction == side), key=lambda pl: pl.id)
+        return [pl for pl in known if pl.goal.direction == side]
 
     def _o_cell(self, plan: Plan, x: np.ndarray) -> int:
         cell = 0
@@ -545,6 +696,8 @@ class Agent:
         t = p.step
         v = self.table[var]
         if v.kind is Kind.MOTOR:
+            if not self._usable(var, q):
+                return FAIL                                  # out of the motor's range (§5.5)
             value = motor_value_for(self.learner.perception.spaces[var], q, v.low, v.high,
                                     self.rng)
             self.motor[v.name] = value
@@ -553,7 +706,8 @@ class Agent:
         plans = self._usable_plans(key, p, [pl for pl in self.plans.values() if pl.action == key])
         idx = self._pick_plan(plans, p) if plans else None
         if idx is None:
-            self.actions.record(key, False, None)            # §5.5.2: no (usable) plan
+            if self.learning:
+                self.actions.record(key, False, None)        # §5.5.2: no (usable) plan
             return FAIL
         plan = plans[idx]
         frame = Frame(key, t, plan_id=plan.id, last_change=t, call_x=p.x.copy(),
@@ -561,7 +715,8 @@ class Agent:
         self.call_list.append(frame)
         depth = len(self.call_list) - 1
         assert plan.sarsa is not None
-        plan.sarsa.reset()
+        if self._sarsa_on():
+            plan.sarsa.reset()
         status = self._next_sub(depth, p, first=True)
         if status == FAIL:
             self._terminate(depth, FAIL, p)
@@ -588,7 +743,7 @@ class Agent:
         if a2 is None:
             return FAIL                                          # §5.5.2 plan rule 2
         f.sub, f.sub_state, f.sub_started = a2, s2, p.step
-        if first and plan.sarsa is not None and not self.params.ablations.no_sarsa:
+        if first and plan.sarsa is not None and self._sarsa_on():
             plan.sarsa.start(s2, a2)
         act = plan.actions[a2]
         if act.role is Role.WAIT:
@@ -600,10 +755,17 @@ class Agent:
         status = self._call(key2, p)
         return status                                            # FAIL: rule 4
 
+    def _sarsa_on(self) -> bool:
+        """Sarsa learns while the agent learns, unless ablated (§5.2.2, §7.11)."""
+        return self.learning and not self.params.ablations.no_sarsa
+
     def _sarsa(self, plan: Plan, f: Frame, p: Percept, s2: int, goal: bool,
                a2: int | None) -> None:
-        if self.params.ablations.no_sarsa or plan.sarsa is None or f.sub < 0:
+        """Eq. 5.7 for the sub-action f.sub called in f.sub_state, ended in s2; a2 the next."""
+        if not self._sarsa_on() or plan.sarsa is None or f.sub < 0 or f.sub_state < 0:
             return
+        if not np.isfinite(plan.q[f.sub_state, f.sub]):
+            return                                       # no longer a pair of this plan
         r = sarsa_reward(goal, p.step - f.sub_started, self.params)
         if a2 is not None and not plan.model.applicable[s2, a2]:  # type: ignore[union-attr]
             a2 = None
@@ -618,12 +780,12 @@ class Agent:
         plan = self.plans.get(f.plan_id)
         if plan is None:
             return FAIL
+        if self._stuck_or_out_of_time(f, plan, p):     # Alg. 7 line 3 before line 5
+            self._end_sub(i, p, goal=False)
+            return FAIL
         if t > f.started and self._achieved(f.key, p):
             self._end_sub(i, p, goal=True)
             return SUCCESS
-        if self._stuck_or_out_of_time(f, plan, p):
-            self._end_sub(i, p, goal=False)
-            return FAIL
         if f.wait_until >= 0:                           # waiting k steps after the antecedent
             if t < f.wait_until:
                 return RUN
@@ -675,11 +837,12 @@ class Agent:
         f = self.call_list[i]
         del self.call_list[i:]
         success = status == SUCCESS
-        if not f.is_motor:
+        if not f.is_motor and self.learning:
             self.actions.record(f.key, success, p.step - f.started if success else None)
             plan = self.plans.get(f.plan_id)
             if plan is not None and f.call_x is not None:
                 plan.record_call(f.call_x, success, self._o_cell(plan, f.call_x))
+                plan.refresh_reliable()
                 self._refresh(plan)
         return f
 
@@ -719,6 +882,7 @@ class Agent:
                 "plans": [{"id": pl.id, "dbn": pl.dbn_id,
                            "dbn_label": self.learner.dbn_label(self.learner.dbns[pl.dbn_id]),
                            "kind": pl.kind, "rel_o": round(pl.rel(), 12), "calls": pl.calls,
+                           "sufficiently_reliable": pl.ever_reliable,
                            "context_o": [self.table[v].name for v in pl.context_o],
                            "states": pl.space.n_states if pl.space else 0}
                           for pl in plans]})

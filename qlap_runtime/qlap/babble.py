@@ -37,6 +37,13 @@ class Babbler:
         done = bool((self.counters > self.limits).any())
         return {m.name: float(v) for m, v in zip(self.motors, self.values, strict=True)}, done
 
+    def restart(self) -> None:
+        """A new episode: every hold counter restarts, so the next :meth:`step` draws a fresh
+        value and hold for every motor (nothing held over from before the discontinuity)."""
+        self.values = np.zeros(len(self.motors))
+        self.counters = np.zeros(len(self.motors), dtype=np.int64)
+        self.limits = np.full(len(self.motors), -1, dtype=np.int64)
+
     def to_state(self) -> dict:
         return {"values": self.values.tolist(), "counters": self.counters.tolist(),
                 "limits": self.limits.tolist()}

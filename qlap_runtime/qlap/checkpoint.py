@@ -204,8 +204,11 @@ AGENT_FORMAT = "qlap-agent"
 AGENT_VERSION = 1
 
 
-def save_agent(agent: Any, directory: str | Path) -> Path:
-    """Write the agent's full state (learner, actions, plans, call list, RNG) atomically."""
+def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> Path:
+    """Write the agent's full state (learner, actions, plans, call list, RNG) atomically.
+
+    ``world``: the spec of the world the agent learned in (``qlap eval``/``qlap curve`` read it
+    so that an evaluation needs no ``--world``)."""
     from .mdp import q_to_state
 
     directory = Path(directory)
@@ -217,7 +220,8 @@ def save_agent(agent: Any, directory: str | Path) -> Path:
         plans.append({"id": pl.id, "dbn_id": pl.dbn_id, "kind": pl.kind, "created": pl.created,
                       "context_o": list(pl.context_o), "call_n": pl.call_n,
                       "call_head": pl.call_head, "calls": pl.calls,
-                      "successes": pl.successes, "q": q_to_state(pl.q)})
+                      "successes": pl.successes, "ever_reliable": bool(pl.ever_reliable),
+                      "q": q_to_state(pl.q)})
         arrays[f"plan.{pid}.call_x"] = pl.call_x
         arrays[f"plan.{pid}.call_ok"] = pl.call_ok
         arrays[f"plan.{pid}.cpt_s"] = pl.cpt_s
@@ -238,6 +242,8 @@ def save_agent(agent: Any, directory: str | Path) -> Path:
         "self_vars": sorted(agent.self_vars), "step_count": agent.step_count,
         "seen_applied": agent._seen_applied,
     }
+    if world is not None:
+        meta["world"] = str(world)
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     atomic_write_bytes(directory / "agent.npz", buf.getvalue())
@@ -281,6 +287,7 @@ def load_agent(directory: str | Path) -> Any:
             pl.context_o = tuple(d["context_o"])
             pl.call_n, pl.call_head = int(d["call_n"]), int(d["call_head"])
             pl.calls, pl.successes = int(d["calls"]), int(d["successes"])
+            pl.ever_reliable = bool(d.get("ever_reliable", False))
             pl.call_x = arrays[f"plan.{pid}.call_x"].astype(float)
             pl.call_ok = arrays[f"plan.{pid}.call_ok"].astype(bool)
             pl.cpt_s = arrays[f"plan.{pid}.cpt_s"].astype(float)

@@ -714,6 +714,120 @@ def remap_q(q: np.ndarray, state_map: np.ndarray | None = None,
     return out
 
 
+def compose_split_maps(splits: Iterable[tuple[int, int]],
+                       sizes: Mapping[int, int] | Sequence[int]) -> dict[int, np.ndarray]:
+    """``new_to_old`` value maps after landmarks split intervals, in order (§4.4).
+
+    ``splits`` are (var, split) pairs as the learner reports them (each in the numbering left
+    by the previous ones, :func:`split_value_map`); ``sizes[var]`` is |Q(var)| after all of them.
+    ``maps[var][q_new]`` is the value q_new came from before the first split; the old size is
+    ``maps[var].max() + 1`` (every old value has a descendant). A variable whose size the
+    splits do not explain gets no map (its plans are then re-planned, :func:`grow_q`).
+    """
+    order: dict[int, list[int]] = {}
+    for var, split in splits:
+        order.setdefault(int(var), []).append(int(split))
+    maps: dict[int, np.ndarray] = {}
+    for var, seq in order.items():
+        m = np.arange(max(0, int(sizes[var]) - 2 * len(seq)), dtype=np.int64)
+        for split in seq:
+            if not 0 <= split < m.size:
+                break
+            q = np.arange(m.size + 2, dtype=np.int64)
+            m = m[np.where(q < split, q, np.where(q <= split + 2, split, q - 2))]
+        else:
+            maps[var] = m
+    return maps
+
+
+def space_value_maps(old: PlanStateSpace, new: PlanStateSpace,
+                     value_maps: Mapping[int, np.ndarray]) -> dict[int, np.ndarray] | None:
+    """The value maps that lead from ``old`` to ``new`` for the variables of both.
+
+    A variable of the same size in both is unchanged (no entry); one that grew needs a map of
+    matching sizes in ``value_maps``. None when a variable's values cannot be followed.
+    """
+    out: dict[int, np.ndarray] = {}
+    for v in old.vars:
+        if v not in new:
+            continue
+        n_old, n_new = old.size_of(v), new.size_of(v)
+        if n_old == n_new:
+            continue
+        m = value_maps.get(v)
+        if m is None or m.size != n_new or int(m.max()) + 1 != n_old:
+            return None
+        out[v] = np.asarray(m, dtype=np.int64)
+    return out
+
+
+def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPAction],
+           new: PlanStateSpace, new_actions: Sequence[MDPAction],
+           value_maps: Mapping[int, np.ndarray], base: np.ndarray) -> np.ndarray | None:
+    """Carry a plan's learned Q-values over a change of its state space (§5.2.2, §5.4.2).
+
+    Each new state inherits the values of the old state it descends from: a value split by a
+    landmark passes its values to the three new values, a variable added (C_o, a DBN context)
+    copies them to each of its values, and a variable dropped averages the old states that
+    merge. Actions follow :func:`action_map`. Pairs with no ancestor (new actions, pairs that
+    became applicable) take ``base`` (e.g. Q* of the new model by value iteration); pairs not
+    applicable in ``base`` (−inf) stay so. None when a variable's values cannot be followed
+    (:func:`space_value_maps`).
+    """
+    maps = space_value_maps(old, new, value_maps)
+    if maps is None:
+        return None
+    q_old = np.asarray(q_old, dtype=float)
+    vals = new.all_values()
+    old_vals = np.zeros((new.n_states, len(old.vars)), dtype=np.int64)
+    dropped = []
+    for i, v in enumerate(old.vars):
+        if v in new:
+            col = vals[:, new.position(v)]
+            old_vals[:, i] = maps[v][col] if v in maps else col
+        else:
+            dropped.append(i)
+    cols = action_map(old_actions, new_actions, maps)
+    known = np.flatnonzero(cols >= 0)
+    acc = np.zeros((new.n_states, known.size))
+    cnt = np.zeros((new.n_states, known.size))
+    combos = np.ndindex(*(old.sizes[i] for i in dropped)) if dropped else iter([()])
+    for combo in combos:
+        for i, q in zip(dropped, combo, strict=True):
+            old_vals[:, i] = q
+        block = q_old[np.ix_(_ravel(old_vals, old.sizes), cols[known])]
+        finite = np.isfinite(block)
+        acc += np.where(finite, block, 0.0)
+        cnt += finite
+    out = np.array(base, dtype=float, copy=True)
+    sub = out[:, known]
+    ok = (cnt > 0) & np.isfinite(sub)
+    sub[ok] = acc[ok] / cnt[ok]
+    out[:, known] = sub
+    return out
+
+
+def descendant_state(old: PlanStateSpace, new: PlanStateSpace,
+                     value_maps: Mapping[int, np.ndarray], old_state: int,
+                     prefer: Sequence[int]) -> int | None:
+    """The state of ``new`` that old state ``old_state`` became, choosing among its
+    descendants the values in ``prefer`` (the agent's current qualitative values, by variable)
+    where there is a choice; None when the values cannot be followed."""
+    maps = space_value_maps(old, new, value_maps)
+    if maps is None:
+        return None
+    before = dict(zip(old.vars, old.values(old_state), strict=True))
+    out = []
+    for v, n in zip(new.vars, new.sizes, strict=True):
+        if v in before:
+            cand = np.flatnonzero(maps[v] == before[v]) if v in maps else np.array([before[v]])
+        else:
+            cand = np.arange(n)
+        want = int(prefer[v]) if v < len(prefer) else -1
+        out.append(want if want in cand else int(cand[0]))
+    return new.index(out)
+
+
 def q_to_state(q: np.ndarray) -> dict[str, Any]:
     """JSON-ready (and npz-ready via ``np.asarray``) form: finite values and a bool mask."""
     q = np.asarray(q, dtype=float)

@@ -299,10 +299,13 @@ class Perception:
         self._all_seen = False
 
     def perceive(self, step: int, x: np.ndarray, copy: bool = True,
-                 discontinuity: bool = False) -> Percept:
+                 discontinuity: bool = False, remember: bool = True) -> Percept:
         """Turn the real vector of one step into qualitative values and events.
 
         ``discontinuity``: the world jumped since the previous step (:meth:`break_history`).
+        ``remember=False`` (evaluation, learning off): the step becomes the previous one but
+        does not enter the history, so nothing derived from it (bin sizes, resolutions,
+        satisfied fractions) changes.
         Raises :class:`InvalidObservation` naming the variable if an available value is NaN or
         infinite, or a nominal value is not one of its indices; the state is then unchanged.
         """
@@ -330,7 +333,11 @@ class Perception:
         else:
             ids = ev_vars
             events = ()
-        self._remember(x, q)
+        if remember:
+            self._remember(x, q)
+        else:
+            self.prev_x = x
+            self.prev_q = q
         return Percept(step, x, q, events, ids, discontinuity)
 
     def _remember(self, x: np.ndarray, q: np.ndarray) -> None:

@@ -24,6 +24,7 @@ from .mdp import (
     TransitionModel,
     build_actions,
     dyna_sweep,
+    grow_q,
     value_iteration,
 )
 from .params import Params
@@ -32,6 +33,8 @@ from .variables import Event, Kind, VariableTable
 
 RelAction = Callable[[int, int], float]
 """rel(a) of the action a(var, value)."""
+Usable = Callable[[int, int], bool]
+"""Whether the action a(var, value) can be performed at all (a motor value in range, §5.5)."""
 
 
 class PlanTooLarge(ValueError):
@@ -77,17 +80,28 @@ class Plan:
         self.space: PlanStateSpace | None = None
         self.actions: list[MDPAction] = []
         self.spec: PlanSpec | None = None
+        self.usable: Usable | None = None
+        self.ever_reliable = False
+        """Sticky: brel(o) > θ_SR at some time (§5.4.1); see :meth:`refresh_reliable`."""
         self._magnitudes = frozenset(v.index for v in table if v.kind is Kind.MAGNITUDE)
         self._nominals = frozenset(v.index for v in table if v.kind is Kind.NOMINAL)
         self._dot_of = {v.source: v.index for v in table if v.kind is Kind.CHANGE}
 
     # -- structure ------------------------------------------------------------------------------
     def build(self, dbn: DBN, sizes: Mapping[int, int] | list[int], rel_action: RelAction,
-              rel_model: Callable[[PlanStateSpace], np.ndarray], fresh: bool = False) -> bool:
+              rel_model: Callable[[PlanStateSpace], np.ndarray], fresh: bool = False,
+              value_maps: Mapping[int, np.ndarray] | None = None,
+              usable: Usable | None = None) -> bool:
         """(Re)build the MDP from the DBN's current structure; keep Q if the space is unchanged.
 
-        A changed state space (new landmarks, contexts) is re-planned by value iteration.
-        Returns True when the structure changed (state indices of the old space are void).
+        A fresh plan is planned by value iteration (§5.2.2). When the state space or the action
+        list changed (new landmarks, contexts), the learned Q-values are carried over to the
+        new space (:func:`~.mdp.grow_q`: each old state's values go to its descendants, via the
+        ``new_to_old`` ``value_maps`` of the variables that gained landmarks); only pairs with
+        no ancestor take the values of value iteration on the new model, and Dyna refines the
+        rest as the model improves. ``usable(var, value)`` False removes a(var, value) from the
+        plan (a motor value out of the motor's range, §5.5). Returns True when the structure
+        changed (state and action indices of the old space are void).
         """
         g = dbn.consequent                       # landmarks may have renumbered it
         self.goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
@@ -103,10 +117,17 @@ class Plan:
                                f"{len(actions)} actions > {self.params.max_plan_entries}")
         same = (not fresh and self.space is not None and space == self.space
                 and actions == self.actions and spec == self.spec)
+        old_space, old_actions, old_q = self.space, self.actions, self.q
         self.spec, self.space, self.actions = spec, space, actions
+        self.usable = usable
         self.model = self._model(rel_action, rel_model)
         if not same:
-            self.q = value_iteration(self.model, self.params)
+            base = value_iteration(self.model, self.params)
+            grown = None
+            if not fresh and old_space is not None:
+                grown = grow_q(old_q, old_space, old_actions, space, actions,
+                               value_maps or {}, base)
+            self.q = base if grown is None else grown
             self.sarsa = SarsaLambda(self.q, self.params)
         return not same
 
@@ -128,6 +149,8 @@ class Plan:
                   and a.var != self.spec.antecedent.var):
                 # Appendix A item 1: actions on nominal variables already achieved in s.
                 regress[:, j] = vals[:, space.position(a.var)] == a.value
+            if a.var >= 0 and self.usable is not None and not self.usable(a.var, a.value):
+                regress[:, j] = True             # e.g. a motor value out of the motor's range
         rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
         return TransitionModel.build(space, self.actions, self.spec, rel_a, rel_model(space),
                                      regress)
@@ -157,13 +180,23 @@ class Plan:
     def failures(self) -> int:
         return self.calls - self.successes
 
-    def plan_stats(self) -> PlanStats:
-        """Counts as :class:`~.actions.PlanStats` (for the plan limits of §6.2.2)."""
-        return PlanStats(self.calls, self.successes, self.calls - self.successes)
+    def plan_stats(self, t: int | None = None) -> PlanStats:
+        """Counts as :class:`~.actions.PlanStats` (for the plan limits of §6.2.2), with the
+        sticky reliability flag and the age at step ``t``."""
+        age = 0 if t is None else max(0, t - self.created)
+        return PlanStats(self.calls, self.successes, self.calls - self.successes,
+                         self.ever_reliable, age)
 
     def stats_removed(self, params: Params) -> bool:
         """rel(o) fell below 0.05 after enough calls (§6.2.2)."""
         return self.plan_stats().should_remove(params)
+
+    def refresh_reliable(self) -> bool:
+        """Set the sticky flag if brel(o) of r_o² is now > θ_SR (§5.4.1: "a plan can also be
+        sufficiently reliable if at any time brel(o) > θ_SR"; the same test as for DBNs)."""
+        if not self.ever_reliable and self.stats().reliable:
+            self.ever_reliable = True
+        return self.ever_reliable
 
     def rel(self, prior: float | None = None) -> float:
         """rel(o): overall reliability of the option (prior α = β = 1 unless given)."""

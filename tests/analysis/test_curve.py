@@ -1,6 +1,7 @@
 """qlap curve: checkpoints found, evaluated in worker processes as `qlap eval` does, resumed,
 aggregated across runs (mean and s/√n), drawn."""
 
+import json
 import math
 import shutil
 import subprocess
@@ -45,6 +46,12 @@ def test_world_from_summary_or_option(runs, tmp_path):
     assert run_world(runs[0], found, "core2d") == "core2d"
     bare = tmp_path / "bare"
     shutil.copytree(runs[0] / "checkpoints", bare / "checkpoints")
+    # the checkpoints record their world: no summary.json needed
+    assert run_world(bare, find_checkpoints(bare, "bare"), None) == "core2d"
+    for meta in bare.glob("checkpoints/*/agent.json"):     # checkpoints of an older format
+        d = json.loads(meta.read_text())
+        d.pop("world")
+        meta.write_text(json.dumps(d))
     with pytest.raises(AnalysisError, match="--world"):
         run_world(bare, find_checkpoints(bare, "bare"), None)
     assert run_world(bare, find_checkpoints(bare, "bare"), "core2d") == "core2d"

@@ -13,9 +13,12 @@ from qlap_runtime.qlap.actions import (
     ActionTable,
     PlanStats,
     is_self,
+    motor_interval,
+    motor_reachable,
     motor_value,
     motor_value_for,
     plan_slots,
+    rest_value,
     targeted,
     theta_pen_for,
     theta_sr_for,
@@ -36,8 +39,8 @@ def stats(successes: int, failures: int, steps: int | None = None) -> ActionStat
     return a
 
 
-def plan(successes: int, failures: int) -> PlanStats:
-    return PlanStats(successes + failures, successes, failures)
+def plan(successes: int, failures: int, reliable: bool = False, age: int = 0) -> PlanStats:
+    return PlanStats(successes + failures, successes, failures, reliable, age)
 
 
 # --- rel(a) and sufficiently reliable ---------------------------------------------------------
@@ -111,11 +114,16 @@ def test_action_stats_json_roundtrip() -> None:
 def test_plan_eligibility_and_removal() -> None:
     assert not plan(20, 10).eligible_for_replacement(P)   # 30 calls: not "more than 30"
     assert plan(20, 11).eligible_for_replacement(P)
-    # 31 calls each; P(p > 0.75) (prior 1): Beta(27, 6) 0.847 ≥ 0.8, Beta(26, 7) 0.722 < 0.8
-    assert plan(26, 5).sufficiently_reliable(P)
-    assert not plan(26, 5).eligible_for_replacement(P)
+    # "sufficiently reliable" is the plan's sticky brel(o) flag (§5.4.1), set by the planner
+    assert plan(26, 5, reliable=True).sufficiently_reliable(P)
+    assert not plan(26, 5, reliable=True).eligible_for_replacement(P)
     assert not plan(25, 6).sufficiently_reliable(P)
     assert plan(25, 6).eligible_for_replacement(P)
+    # a plan almost never called holds its slot for dbn_max_age = 100,000 steps at most
+    assert not plan(0, 3, age=99_999).eligible_for_replacement(P)
+    assert plan(0, 3, age=100_000).eligible_for_replacement(P)
+    assert plan(0, 0, age=100_000).eligible_for_replacement(P)
+    assert not plan(0, 3, reliable=True, age=100_000).eligible_for_replacement(P)
     # removal: rel(o) (prior 1) < 0.05 with ≥ 30 calls
     assert plan(0, 30).should_remove(P)                   # 1/32 = 0.031
     assert not plan(0, 29).should_remove(P)               # too few calls, though 1/31 < 0.05
@@ -128,8 +136,21 @@ def test_plan_slots_no_replacement_when_young_or_reliable() -> None:
     slots = plan_slots(young, P)
     assert slots == type(slots)((), 0, None)
     assert not slots.accepts_new
-    reliable = [plan(30, 1), plan(1, 20), plan(28, 4)]    # the old one is sufficiently reliable
+    # the two old ones are sufficiently reliable (sticky brel(o) flag), the third is young
+    reliable = [plan(30, 1, reliable=True), plan(1, 20), plan(28, 4, reliable=True)]
     assert plan_slots(reliable, P).replaceable is None
+
+
+def test_plan_slots_a_plan_never_called_does_not_block_the_action_for_ever() -> None:
+    # three young plans: none replaceable; once the first is 100,000 steps old with 10 calls
+    # it is (rel(o) with prior 0: 5/10 = 0.5), the others being young
+    young = [plan(5, 5, age=99_999), plan(1, 20, age=50_000), plan(0, 0, age=10)]
+    assert plan_slots(young, P).replaceable is None
+    young[0] = plan(5, 5, age=100_000)
+    assert plan_slots(young, P).replaceable == 0
+    # among eligible plans the lowest rel(o) (prior 0) goes: never called counts as 0.0
+    mixed = [plan(5, 5, age=100_000), plan(10, 21), plan(0, 0, age=100_000)]
+    assert plan_slots(mixed, P).replaceable == 2
 
 
 def test_plan_slots_replaces_lowest_prior_zero() -> None:
@@ -198,6 +219,24 @@ def test_motor_value_never_returns_open_interval_endpoint() -> None:
 
     x = motor_value(-1.0, 1.0, 0.0, math.inf, Stub())  # type: ignore[arg-type]
     assert x == 0.5
+
+
+def test_motor_values_out_of_the_motor_range_are_not_reachable() -> None:
+    # u_UG in [0, 1] with a landmark at 0: (−∞, 0) is out of reach, [0] and (0, +∞) are not
+    space = QuantitySpace([Landmark(0.0, 0.0)])
+    assert [motor_reachable(space, q, 0.0, 1.0) for q in range(3)] == [False, True, True]
+    assert motor_interval(0.0, 1.0, -math.inf, 0.0) is None
+    assert motor_interval(0.0, 1.0, 0.0, 0.0, landmark=True) == (0.0, 0.0)
+    assert motor_interval(0.0, 1.0, 0.0, math.inf) == (0.0, 1.0)
+    # unbounded motors: only bounded values (or point landmarks) are reachable
+    assert not motor_reachable(space, 2, None, None)
+    assert motor_reachable(space, 1, None, None)
+    # rest: 0, or the nearest value of the range
+    assert rest_value(-1.0, 1.0) == 0.0
+    assert rest_value(0.0, 1.0) == 0.0
+    assert rest_value(0.2, 1.0) == 0.2
+    assert rest_value(-3.0, -1.0) == -1.0
+    assert rest_value(None, None) == 0.0
 
 
 def test_motor_value_errors() -> None:

@@ -10,6 +10,7 @@ import pytest
 from qlap_runtime.qlap import Params
 from qlap_runtime.qlap.agent import FAIL, RUN, Agent, Frame
 from qlap_runtime.qlap.checkpoint import load_agent, save_agent
+from qlap_runtime.qlap.dbn import CHANGE, DBN, MAGNITUDE
 from tests.qlap.toyworld import SPECS, ToyWorld
 
 PARAMS = Params(babble_steps=14_000)
@@ -165,3 +166,314 @@ def test_no_plan_means_the_action_fails_and_goal_mode_moves_randomly():
         agent.set_goal("x.dot", "up")
     with pytest.raises(KeyError, match="unknown variable 'y'"):
         agent.set_goal("y", 0)
+
+
+# --- evaluation is frozen and clean (§7.2) ----------------------------------------------------
+
+
+def knowledge_snapshot(agent: Agent) -> dict[str, bytes]:
+    """Everything the agent has learned, as bytes: learner knowledge (with the resolutions the
+    perception derives from its history), actions (with IAC histories), plans (Q, traces,
+    second-order statistics) and DBN statistics."""
+    k = agent.knowledge()
+    out = {"knowledge": json.dumps(k, sort_keys=True).encode(),
+           "actions": json.dumps(agent.actions.to_json(), sort_keys=True).encode(),
+           "self": json.dumps(sorted(agent.self_vars)).encode()}
+    for pid, pl in sorted(agent.plans.items()):
+        assert pl.sarsa is not None
+        for name in ("q", "cpt_s", "cpt_f", "call_x", "call_ok"):
+            out[f"plan{pid}.{name}"] = np.ascontiguousarray(getattr(pl, name)).tobytes()
+        out[f"plan{pid}.e"] = pl.sarsa.e.tobytes()
+        out[f"plan{pid}.n"] = json.dumps([pl.calls, pl.successes, pl.call_n, pl.call_head,
+                                          list(pl.context_o), pl.ever_reliable]).encode()
+    for did, d in sorted(agent.learner.dbns.items()):
+        out[f"dbn{did}"] = b"".join(np.ascontiguousarray(a).tobytes()
+                                    for a in (d.cpt_s, d.cpt_f, d.act_x, d.act_ok))
+        out[f"dbn{did}.n"] = json.dumps([d.act_n, d.total, d.ever_reliable]).encode()
+    return out
+
+
+def test_evaluation_changes_nothing_the_agent_learned(trained, tmp_path):
+    from qlap_runtime.agent_run import evaluate, goal_policy
+    from tests.qlap.toyworld import ToyTaskWorld
+    from worlds.evaluate import run_trials
+
+    agent, _ = trained
+    agent.learning = True
+    save_agent(agent, tmp_path / "ck")
+    ev = load_agent(tmp_path / "ck")
+    before = knowledge_snapshot(ev)
+    world = ToyTaskWorld()
+    res = run_trials(world, "x_up", 10, 3, goal_policy(ev, world, "x_up"))
+    assert res["successes"] >= 8                         # the plans were used
+    assert ev.counters.successes + ev.counters.failures >= 10
+    after = knowledge_snapshot(ev)
+    assert [k for k in before if before[k] != after[k]] == []
+    # the command-line path loads the checkpoint itself; same result for the same seed
+    again = evaluate(tmp_path / "ck", ToyTaskWorld(), "x_up", 10, 3)
+    assert again["rewards"] == res["rewards"]
+
+
+def test_evaluation_leaves_the_perception_history_alone(trained, tmp_path):
+    from qlap_runtime.agent_run import goal_policy
+    from tests.qlap.toyworld import ToyTaskWorld
+    from worlds.evaluate import run_trials
+
+    agent, _ = trained
+    agent.learning = True
+    save_agent(agent, tmp_path / "ck")
+    ev = load_agent(tmp_path / "ck")
+    before = knowledge_snapshot(ev)
+    world = ToyTaskWorld()
+    run_trials(world, "x_up", 10, 3, goal_policy(ev, world, "x_up"))
+    assert knowledge_snapshot(ev) == before
+
+
+def test_the_same_trials_with_learning_on_would_change_the_knowledge(trained, tmp_path):
+    """The control of the test above: the snapshot does see what practice changes."""
+    from tests.qlap.toyworld import ToyTaskWorld
+    from worlds.evaluate import run_trials
+
+    agent, _ = trained
+    agent.learning = True
+    save_agent(agent, tmp_path / "ck")
+    ev = load_agent(tmp_path / "ck")
+    before = knowledge_snapshot(ev)
+    world = ToyTaskWorld()
+    from qlap_runtime.agent_run import goal_policy
+
+    policy = goal_policy(ev, world, "x_up")
+    ev.learning = True                                   # (goal_policy turned it off)
+    run_trials(world, "x_up", 3, 3, policy)
+    after = knowledge_snapshot(ev)
+    changed = {k.split(".")[0] for k in before if before[k] != after[k]}
+    assert "actions" in changed and any(k.startswith("plan") for k in changed)
+
+
+def test_a_new_episode_puts_the_motors_at_rest_and_restarts_babbling():
+    from tests.qlap.toyworld import Spec
+
+    specs = (Spec("u", "motor", -1.0, 1.0), Spec("g", "motor", 0.2, 1.0), Spec("x", "magnitude"))
+    agent = Agent(specs, PARAMS, seed=5)
+    assert agent.motor == {"u": 0.0, "g": 0.2}           # rest: 0, or the nearest in range
+    for t in range(30):
+        agent.step(t, {"x": 5.0})
+    assert agent.motor["u"] != 0.0 and agent.babbler.counters.any()
+    agent.new_episode()
+    assert agent.motor == {"u": 0.0, "g": 0.2}
+    assert not agent.babbler.counters.any() and (agent.babbler.limits == -1).all()
+    # the first babbling step after it draws a new value and hold for every motor
+    rng = np.random.default_rng(0)
+    agent.rng.bit_generator.state = rng.bit_generator.state
+    motor, _ = agent.babbler.step()
+    expect = np.random.default_rng(0)
+    u = expect.uniform(-1.0, 1.0)
+    expect.integers(0, PARAMS.babble_max_hold + 1)
+    g = expect.uniform(0.2, 1.0)
+    assert motor == {"u": u, "g": g}
+    # the previous values are forgotten: no direction of change on the next step
+    p_motor = agent.step(30, {"x": 7.0})
+    assert p_motor is not None
+    xdot = agent.table.index("x.dot")
+    assert agent._last_percept.q[xdot] == -1
+
+
+def practising(agent: Agent, world: ToyWorld, t: int, min_frames: int = 2) -> int:
+    """Step until the agent is practising with at least ``min_frames`` frames."""
+    for _ in range(5000):
+        motor = agent.step(t, {"x": world.x})
+        world.step(motor["u"])
+        t += 1
+        if agent.mode == "practice" and len(agent.call_list) >= min_frames:
+            return t
+    raise AssertionError("the agent never practised")
+
+
+def test_a_discontinuity_ends_the_call_list_without_recording(trained):
+    import copy
+
+    agent, world = copy.deepcopy(trained)
+    agent.learning = True
+    agent.clear_goal()
+    world = ToyWorld(5.0)
+    t = practising(agent, world, agent.step_count + 1)
+    calls = {key: st.calls for key, st in agent.actions.items()}
+    interrupts = agent.counters.call_list_interrupts
+    agent.step(t, {"x": 2.0}, discontinuity=True)        # the world jumped
+    assert agent.counters.call_list_interrupts == interrupts + 1
+    # neither success nor failure recorded for any action
+    assert {key: st.calls for key, st in agent.actions.items()} == calls
+    assert agent._last_percept.discontinuity
+    assert agent._last_percept.q[agent.table.index("x.dot")] == -1
+    # with no direction of change nothing is applicable: a babbling command, no failed call
+    assert agent.call_list == [] and agent.mode in ("command", "idle")
+
+
+# --- motors whose range does not straddle a landmark (§5.5) ------------------------------------
+
+
+def test_a_motor_value_out_of_range_is_not_applicable_and_never_crashes():
+    from qlap_runtime.qlap.delta import Delta
+    from tests.qlap.toyworld import Spec
+
+    specs = (Spec("g", "motor", 0.0, 1.0), Spec("x", "magnitude"))
+    agent = Agent(specs, PARAMS, seed=1)
+    for t in range(3):
+        agent.step(t, {"x": 1.0})
+    g = agent.table.index("g")
+    # a landmark at 0 (as core's u_UG had): (−∞, 0) is a value g can never take
+    agent.learner.apply_delta(Delta(1, 2, 2, (("add_landmark", g, 0.0, 0.0, "dbn", 2, None,
+                                               None, None),)))
+    agent.step(3, {"x": 1.0})
+    space = agent.learner.perception.spaces[g]
+    assert space.bounds(0)[1] == 0.0
+    assert not agent._usable(g, 0) and agent._usable(g, 1) and agent._usable(g, 2)
+    p = agent._last_percept
+    before = dict(agent.motor)
+    assert agent._call((g, 0), p) == FAIL                # fails at call, no ValueError
+    assert agent.motor == before and agent.call_list == []
+    assert agent._call((g, 2), p) == RUN
+    assert 0.0 < agent.motor["g"] <= space.bounds(2)[1]
+    agent.call_list.clear()
+    agent.set_goal(g, 0)                                 # goal mode on it: moves randomly
+    for t in range(4, 10):
+        m = agent.step(t, {"x": 1.0})
+        assert 0.0 <= m["g"] <= 1.0
+
+
+# --- plans: which DBNs become plans (§6.2.2) ---------------------------------------------------
+
+
+def fresh_agent(specs, params: Params, landmarks: dict[str, float] | None = None) -> Agent:
+    """An agent that has seen three steps, with point landmarks added through a delta."""
+    from qlap_runtime.qlap.delta import Delta
+
+    agent = Agent(specs, params, seed=0)
+    obs = {s.name: 5.0 for s in specs if s.kind == "magnitude"}
+    for t in range(3):
+        agent.step(t, obs)
+    ops = tuple(("add_landmark", agent.table.index(n), v, v, "event", 2, None, None, None)
+                for n, v in (landmarks or {}).items())
+    agent.learner.apply_delta(Delta(1, 2, 2, ops))
+    agent.step(3, obs)
+    return agent
+
+
+def add_dbn(agent: Agent, dbn_id: int, kind: str, ante: tuple[int, int, int],
+            cons: tuple[int, int, int], s: float, f: float, reliable: bool = True) -> DBN:
+    from qlap_runtime.qlap.variables import Event
+
+    dbn = DBN(dbn_id, kind, Event(*ante), Event(*cons), (), 0, len(agent.table), 200)
+    dbn.cpt_s, dbn.cpt_f = np.array([s]), np.array([f])
+    dbn.ever_reliable = reliable
+    agent.learner.dbns[dbn_id] = dbn
+    return dbn
+
+
+def plan_dbns(agent: Agent) -> list[int]:
+    return sorted(pl.dbn_id for pl in agent.plans.values())
+
+
+def test_competing_dbns_are_converted_best_first():
+    agent = fresh_agent(SPECS, PARAMS.replace(max_plans_per_action=1))
+    u, xdot = agent.table.index("u"), agent.table.index("x.dot")
+    # brel (B.4): DBN 0: (20 + 1)/(25 + 2) = 0.778; DBN 1: (40 + 1)/(42 + 2) = 0.932
+    add_dbn(agent, 0, CHANGE, (u, 2, 0), (xdot, 2, 0), 20, 5)
+    add_dbn(agent, 1, CHANGE, (u, 1, 0), (xdot, 2, 0), 40, 2)
+    agent._convert_dbns_to_plans(100)
+    assert plan_dbns(agent) == [1]                       # not DBN 0, though its id is lower
+
+
+def test_a_plan_never_called_gives_its_slot_up_after_dbn_max_age():
+    agent = fresh_agent(SPECS, PARAMS.replace(max_plans_per_action=1))
+    u, xdot = agent.table.index("u"), agent.table.index("x.dot")
+    add_dbn(agent, 0, CHANGE, (u, 2, 0), (xdot, 2, 0), 20, 5)
+    agent._convert_dbns_to_plans(100)
+    assert plan_dbns(agent) == [0]
+    add_dbn(agent, 1, CHANGE, (u, 1, 0), (xdot, 2, 0), 40, 2)
+    agent._convert_dbns_to_plans(100 + 99_999)           # called 0 < 30 times, young: kept
+    assert plan_dbns(agent) == [0]
+    agent._convert_dbns_to_plans(100 + 100_000)          # 100,000 steps old: replaced
+    assert plan_dbns(agent) == [1]
+
+
+def test_nrp_needs_a_sufficiently_reliable_plan_for_the_antecedent():
+    from tests.qlap.toyworld import Spec
+
+    specs = (*SPECS, Spec("y", "magnitude"))
+    agent = fresh_agent(specs, PARAMS, landmarks={"x": 5.0})
+    u, x = agent.table.index("u"), agent.table.index("x")
+    xdot, ydot = agent.table.index("x.dot"), agent.table.index("y.dot")
+    add_dbn(agent, 0, CHANGE, (u, 2, 0), (xdot, 2, 0), 40, 2)         # ⟨u→(0,∞) ⇒ ẋ→[+]⟩
+    add_dbn(agent, 1, CHANGE, (u, 0, 0), (xdot, 0, 0), 40, 2)         # ⟨u→(−∞,0) ⇒ ẋ→[−]⟩
+    add_dbn(agent, 2, MAGNITUDE, (xdot, 2, 0), (x, 1, 1), 0, 0, False)   # ⟨ẋ→[+] ⇒ ↑x→[5]⟩
+    add_dbn(agent, 3, MAGNITUDE, (xdot, 0, 0), (x, 1, -1), 0, 0, False)  # ⟨ẋ→[−] ⇒ ↓x→[5]⟩
+    add_dbn(agent, 4, CHANGE, (x, 1, 1), (ydot, 2, 0), 30, 3)         # ⟨↑x→[5] ⇒ ẏ→[+]⟩
+    add_dbn(agent, 5, CHANGE, (xdot, 2, 0), (ydot, 0, 0), 30, 3)      # ⟨ẋ→[+] ⇒ ẏ→[−]⟩
+    agent._convert_dbns_to_plans(100)
+    # motor antecedents convert; magnitude DBNs once a(ẋ, [±]) has a plan (same batch, since
+    # they rank last: brel ⊥); DBNs 4 and 5 need a sufficiently reliable plan for their
+    # antecedent, and the new plans have never been called
+    assert plan_dbns(agent) == [0, 1, 2, 3]
+    by_dbn = {pl.dbn_id: pl for pl in agent.plans.values()}
+    by_dbn[3].ever_reliable = True                       # reaches x = 5 from above: wrong side
+    agent._convert_dbns_to_plans(102)
+    assert plan_dbns(agent) == [0, 1, 2, 3]
+    by_dbn[2].ever_reliable = True                       # from below: ↑x → [5] is achievable
+    agent._convert_dbns_to_plans(104)
+    assert plan_dbns(agent) == [0, 1, 2, 3, 4]
+    by_dbn[0].ever_reliable = True                       # a(ẋ, [+]) is now reliable
+    agent._convert_dbns_to_plans(106)
+    assert plan_dbns(agent) == [0, 1, 2, 3, 4, 5]
+
+
+# --- the call list across a landmark batch (§5.2.2, §5.4.2) -------------------------------------
+
+
+def test_a_landmark_batch_renumbers_the_running_call_list_and_keeps_q(trained):
+    import copy
+
+    from qlap_runtime.qlap.delta import Delta
+
+    agent, _ = copy.deepcopy(trained)
+    agent.learning = True
+    agent.clear_goal()
+    world = ToyWorld(5.0)
+    u = agent.table.index("u")
+    # practise until a plan on u (a(ẋ, [±])) runs with its motor action below it
+    t = agent.step_count + 1
+    for _ in range(20):
+        t = practising(agent, world, t)
+        f0 = agent.call_list[0]
+        if agent.plans[f0.plan_id].space.vars[-2:] == (u, agent.table.index("x.dot")) \
+                and agent.call_list[-1].is_motor and f0.sub >= 0 and f0.sub_state >= 0:
+            break
+        agent.clear_goal()
+        agent.call_list.clear()
+        agent.mode = "idle"
+    else:
+        raise AssertionError("no call list with a plan on u")
+    plan = agent.plans[f0.plan_id]
+    old_q = plan.q.copy()
+    old_sub, old_state = f0.sub, f0.sub_state
+    old_act = plan.actions[old_sub]
+    old_keys = [f.key for f in agent.call_list]
+    assert agent.learner.perception.spaces[u].bounds(0)[1] < -0.29   # (−∞, −0.3…) is value 0
+    # a landmark at −0.9 splits u's value 0; every value of u above it moves up by 2
+    agent.learner.apply_delta(Delta(99, t - 1, t - 1, (("add_landmark", u, -0.9, -0.9, "dbn",
+                                                        t - 1, None, None, None),)))
+    interrupts = agent.counters.call_list_interrupts
+    full = {"x": world.x, **agent.motor}
+    p = agent.learner.observe(t, full)
+    agent._seen_applied = agent.learner.applied_count
+    agent._after_batch(p)
+    assert agent.counters.call_list_interrupts == interrupts           # not interrupted
+    assert [f.key for f in agent.call_list] == \
+        [(v, q + 2) if v == u else (v, q) for v, q in old_keys]
+    assert plan.space.size_of(u) == 9
+    # the frame's sub-action and state follow the new indices; the Q-value goes with them
+    new_act = plan.actions[f0.sub]
+    assert (new_act.var, new_act.role) == (old_act.var, old_act.role)
+    assert new_act.value == old_act.value + (2 if old_act.var == u else 0)
+    assert plan.q[f0.sub_state, f0.sub] == old_q[old_state, old_sub]
+    agent._act(p)                                                       # and it runs on

@@ -19,9 +19,12 @@ from qlap_runtime.qlap.mdp import (
     actions_from_state,
     actions_to_state,
     build_actions,
+    compose_split_maps,
+    descendant_state,
     dyna_sweep,
     greedy_action,
     greedy_policy,
+    grow_q,
     q_from_state,
     q_to_state,
     remap_q,
@@ -133,6 +136,69 @@ def test_resized_splits_a_value_into_three_copies() -> None:
         sp.resized(7, 5, [0, 1, (2, 3)])
     with pytest.raises(ValueError, match="two old values"):
         sp.resized(7, 3, [0, 1, 1])
+
+
+def test_compose_split_maps_by_hand() -> None:
+    # var 7 had 3 values; a landmark splits value 2 (→ 5 values), then one splits value 0 of
+    # that numbering (→ 7 values). First map: [0, 1, 2, 2, 2]; the second split sends new
+    # 0, 1, 2 to 0 and q > 2 to q − 2: [0, 0, 0, 1, 2, 3, 4] → [0, 0, 0, 1, 2, 2, 2].
+    maps = compose_split_maps([(7, 2), (7, 0), (3, 4)], {7: 7, 3: 9})
+    np.testing.assert_array_equal(maps[7], [0, 0, 0, 1, 2, 2, 2])
+    np.testing.assert_array_equal(maps[3], [0, 1, 2, 3, 4, 4, 4, 5, 6])
+    assert compose_split_maps([(7, 6)], {7: 5}) == {}       # sizes not explained: no map
+
+
+def test_grow_q_carries_values_through_a_split() -> None:
+    # old: vars (7, 2), sizes (3, 2), state (v7, v2) = 2·v7 + v2; actions a(7, 0..2), a(2, 1)
+    old = PlanStateSpace((7, 2), (3, 2))
+    old_actions = [MDPAction(7, q) for q in range(3)] + [MDPAction(2, 1, Role.ANTECEDENT)]
+    q_old = np.arange(24.0).reshape(6, 4)
+    q_old[5, 1] = NOT_APPLICABLE
+    # a landmark splits value 2 of var 7: new sizes (5, 2), map [0, 1, 2, 2, 2]
+    new = PlanStateSpace((7, 2), (5, 2))
+    new_actions = [MDPAction(7, q) for q in range(5)] + [MDPAction(2, 1, Role.ANTECEDENT)]
+    base = np.full((10, 6), -1.0)
+    base[new.index((3, 1)), 4] = NOT_APPLICABLE
+    q = grow_q(q_old, old, old_actions, new, new_actions, {7: np.array([0, 1, 2, 2, 2])}, base)
+    assert q is not None
+    # new (3, 1) descends from old (2, 1) = state 5, row [20, −inf, 22, 23]; a(7, 3), a(7, 4)
+    # continue a(7, 2); the −inf old pair takes base (−1); base's −inf stays.
+    np.testing.assert_array_equal(q[new.index((3, 1))], [20, -1, 22, 22, NOT_APPLICABLE, 23])
+    # new (1, 0) is old (1, 0) = state 2: [8, 9, 10, 10, 10, 11]
+    np.testing.assert_array_equal(q[new.index((1, 0))], [8, 9, 10, 10, 10, 11])
+    # a size change without a map cannot be followed
+    assert grow_q(q_old, old, old_actions, new, new_actions, {}, base) is None
+
+
+def test_grow_q_adds_and_drops_variables() -> None:
+    # old: vars (0, 1), sizes (2, 2), state 2·v0 + v1; actions a(0, 0), a(0, 1), a(1, 1)
+    old = PlanStateSpace((0, 1), (2, 2))
+    old_actions = [MDPAction(0, 0), MDPAction(0, 1), MDPAction(1, 1, Role.ANTECEDENT)]
+    q_old = np.zeros((4, 3))
+    q_old[:, 2] = [1.0, 5.0, 3.0, NOT_APPLICABLE]
+    # new: var 0 dropped, var 5 (3 values) added: vars (1, 5), state 3·v1 + v5
+    new = PlanStateSpace((1, 5), (2, 3))
+    new_actions = [MDPAction(5, q) for q in range(3)] + [MDPAction(1, 1, Role.ANTECEDENT)]
+    base = np.full((6, 4), -1.5)
+    q = grow_q(q_old, old, old_actions, new, new_actions, {}, base)
+    assert q is not None
+    # a(1, 1) at v1 = 0: mean of old (0, 0) and (1, 0) = (1 + 3)/2 = 2; at v1 = 1: old (0, 1)
+    # = 5 and (1, 1) not applicable → 5; the same for every value of the new var 5.
+    np.testing.assert_array_equal(q[:, 3], [2, 2, 2, 5, 5, 5])
+    np.testing.assert_array_equal(q[:, :3], -1.5)           # new actions: base
+
+
+def test_descendant_state_prefers_the_current_values() -> None:
+    old = PlanStateSpace((7, 2), (3, 2))
+    new = PlanStateSpace((7, 2, 9), (5, 2, 3))             # 7 split at 2, 9 added
+    maps = {7: np.array([0, 1, 2, 2, 2])}
+    prefer = np.full(10, -1)
+    prefer[7], prefer[2], prefer[9] = 4, 0, 2
+    # old (2, 1): v7 ∈ {2, 3, 4} → 4 (preferred); v2 must stay 1; v9 → 2: (4·2 + 1)·3 + 2 = 29
+    assert descendant_state(old, new, maps, old.index((2, 1)), prefer) == 29
+    prefer[7] = 0                                           # not a descendant: the first, 2
+    assert descendant_state(old, new, maps, old.index((2, 1)), prefer) == (2 * 2 + 1) * 3 + 2
+    assert descendant_state(old, new, {}, 0, prefer) is None
 
 
 # --- transitions and applicability ----------------------------------------------------------

@@ -2,6 +2,7 @@
 
 u ∈ [−1, 1] moves x only when |u| > 0.3 (x += 0.5·u per step), and x is bounded in [0, 10].
 The motor value chosen at step t acts on x between t and t + 1, as in the agent loop.
+:class:`ToyTaskWorld` adds one evaluation task (§7.2.1) for ``worlds.evaluate.run_trials``.
 """
 
 from __future__ import annotations
@@ -9,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from worlds.base import Goal, Task
 
 
 @dataclass(frozen=True)
@@ -46,3 +49,42 @@ def babble_stream(steps: int, seed: int):
         motor, _ = babbler.step()
         yield t, {"u": motor["u"], "x": world.x}
         world.step(motor["u"])
+
+
+class ToyTaskWorld:
+    """:class:`ToyWorld` with the evaluation interface of ``worlds.evaluate.run_trials``: one
+    task, "x_up" (goal ẋ = [+], §7.2.1), whose trials start with x uniform in [1, 9]."""
+
+    name = "toy"
+
+    def __init__(self) -> None:
+        self.world = ToyWorld()
+        self.prev = self.world.x
+        self.step_count = 0
+        self.discontinuity = False
+        self.tasks = {"x_up": XUp()}
+
+    def step(self, motor) -> dict[str, float]:
+        self.prev = self.world.x
+        self.world.step(float(motor["u"]))
+        self.step_count += 1
+        self.discontinuity = False
+        return {"x": self.world.x}
+
+
+class XUp(Task):
+    name = "x_up"
+    max_steps = 50
+
+    def setup(self, world, rng) -> dict[str, float]:
+        world.world.x = float(rng.uniform(1.0, 9.0))
+        world.prev = world.world.x
+        world.step_count = 0
+        world.discontinuity = True                  # a new trial is a jump
+        return {"x": world.world.x}
+
+    def goal(self, world, obs) -> Goal:
+        return Goal("x.dot", "+")
+
+    def is_success(self, world, obs) -> bool:
+        return obs["x"] - world.prev > 0.1

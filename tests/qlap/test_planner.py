@@ -1,0 +1,125 @@
+"""Plans (§5.2–5.4): learned Q-values survive a growth of the state space; usable actions; the
+sticky brel(o) flag. Numbers are computed by hand in the comments."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qlap_runtime.qlap import Params, VariableTable
+from qlap_runtime.qlap.dbn import CHANGE, DBN
+from qlap_runtime.qlap.mdp import NOT_APPLICABLE, sarsa_reward
+from qlap_runtime.qlap.planner import Plan, dbn_rel_state
+from qlap_runtime.qlap.variables import Event
+from tests.qlap.toyworld import SPECS
+
+P = Params()
+U, X, XDOT = 0, 1, 2           # motor u, magnitude x, its direction of change ẋ
+V_STAR = 60 / 11               # Q* of a(u, (0, +∞)) in every non-goal state, see below
+
+
+def rel_half(var: int, value: int) -> float:
+    return 0.5
+
+
+def make_plan() -> tuple[Plan, DBN, VariableTable]:
+    """⟨{}: u → (0, +∞) ⇒ ẋ → [+]⟩ as a plan; S = Q(u) × Q(ẋ) = 3 × 3, one action a(u, 2)."""
+    table = VariableTable.from_specs(SPECS)
+    dbn = DBN(0, CHANGE, Event(U, 2, 0), Event(XDOT, 2, 0), (), 0, len(table), 200)
+    plan = Plan(0, dbn, table, P, 0, len(table))
+    sizes = [3, 1, 3]
+    plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), fresh=True)
+    return plan, dbn, table
+
+
+def test_value_iteration_of_the_toy_plan_by_hand() -> None:
+    # rel(r, s) = (0 + 1)/(0 + 0 + 2) = 0.5 with no data. a(u, 2) reaches ẋ = [+] (R = 10 − 2)
+    # w.p. 0.5, else s' has u = 2 and ẋ unchanged (R = −2), whose value is the same V:
+    # V = 0.5·8 + 0.5·(−2 + 0.9·V) → 0.55·V = 3 → V = 60/11 = 5.4545…
+    plan, _, _ = make_plan()
+    assert plan.space is not None and plan.space.vars == (U, XDOT)
+    for u in range(3):
+        for xd in range(2):
+            assert plan.q[plan.space.index((u, xd)), 0] == pytest.approx(V_STAR, abs=1e-5)
+        assert plan.q[plan.space.index((u, 2)), 0] == NOT_APPLICABLE   # goal: terminal
+
+
+def test_a_q_value_learned_by_sarsa_survives_state_space_growth() -> None:
+    plan, dbn, _ = make_plan()
+    assert plan.space is not None and plan.sarsa is not None
+    s0 = plan.space.index((0, 0))
+    # Sarsa: a(u, 2) in (u = 0, ẋ = [−]) reached the goal in 3 steps: r' = 10 − 0.03 = 9.97,
+    # terminal. δ = 9.97 − 60/11 = 4.515455; Q = 60/11 + 0.2·δ = 6.357636
+    plan.sarsa.start(s0, 0)
+    plan.sarsa.update(s0, 0, sarsa_reward(True, 3, P), plan.space.index((0, 2)), None)
+    learned = 60 / 11 + 0.2 * (9.97 - 60 / 11)
+    assert plan.q[s0, 0] == pytest.approx(learned)
+    assert learned == pytest.approx(6.357636, abs=1e-6)
+
+    # 1. C_o gains x (3 values, §5.4.2): S = Q(x) × Q(u) × Q(ẋ); the actions a(x, 0..2) come
+    # first, a(u, 2) is now column 3. Every value of x inherits the learned value.
+    plan.context_o = (X,)
+    sizes = [3, 3, 3]
+    assert plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0))
+    sp = plan.space
+    assert sp.vars == (X, U, XDOT) and len(plan.actions) == 4
+    for x in range(3):
+        assert plan.q[sp.index((x, 0, 0)), 3] == pytest.approx(learned)
+        assert plan.q[sp.index((x, 1, 0)), 3] == pytest.approx(V_STAR, abs=1e-5)
+    # New pairs take value iteration on the new model: a(x, q) is applicable only where
+    # x > q (rule 1; rule 2 excludes x < q, which would need ẋ = [+]); it moves x w.p. 0.5
+    # and otherwise stays, reward −2, and V is still 60/11: Q = −2 + 0.9·60/11 = 2.909091
+    assert plan.q[sp.index((2, 0, 0)), 0] == pytest.approx(-2 + 0.9 * V_STAR, abs=1e-5)
+    assert plan.q[sp.index((0, 0, 0)), 0] == NOT_APPLICABLE
+    assert plan.sarsa.q is plan.q
+
+    # 2. A landmark splits u's interval (−∞, 0) (value 0): u has 5 values, new_to_old
+    # [0, 0, 0, 1, 2]; the antecedent (0, +∞) is renumbered 2 → 4 (as the learner does).
+    dbn.antecedent = Event(U, 4, 0)
+    sizes = [5, 3, 3]
+    maps = {U: np.array([0, 0, 0, 1, 2])}
+    assert plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), value_maps=maps)
+    sp = plan.space
+    assert sp.sizes == (3, 5, 3)
+    for x in range(3):
+        for u in range(3):                          # the three descendants of old u = 0
+            assert plan.q[sp.index((x, u, 0)), 3] == pytest.approx(learned)
+        assert plan.q[sp.index((x, 3, 0)), 3] == pytest.approx(V_STAR, abs=1e-5)
+
+    # 3. Unchanged structure: Q is kept as it is; fresh: value iteration from scratch.
+    assert not plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0))
+    assert plan.q[sp.index((1, 1, 0)), 3] == pytest.approx(learned)
+    assert plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), fresh=True)
+    assert plan.q[sp.index((1, 1, 0)), 3] == pytest.approx(V_STAR, abs=1e-5)
+
+
+def test_unusable_actions_are_never_applicable() -> None:
+    plan, dbn, _ = make_plan()
+    plan.context_o = (X,)
+    sizes = [3, 3, 3]
+    plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), fresh=True,
+               usable=lambda v, q: not (v == X and q == 0))
+    assert plan.actions[0].var == X and plan.actions[0].value == 0
+    assert np.all(plan.q[:, 0] == NOT_APPLICABLE)
+    assert plan.model is not None and not plan.model.applicable[:, 0].any()
+    # the mask holds through a refresh (Dyna) as well
+    plan.refresh(rel_half, dbn_rel_state(dbn, sizes, 1.0), dyna=True)
+    assert not plan.model.applicable[:, 0].any()
+    assert np.all(plan.q[:, 0] == NOT_APPLICABLE)
+
+
+def test_sufficiently_reliable_plan_is_sticky() -> None:
+    # r_o² with empty C_o has one cell; brel(o) needs 5 successes (App. B.1): with 4, ⊥.
+    # With 5: brel = 6/7 = 0.857 and P(p > 0.75 | Beta(6, 1)) = 1 − 0.75⁶ = 0.822 ≥ 0.8.
+    plan, _, table = make_plan()
+    x = np.zeros(len(table))
+    for _ in range(4):
+        plan.record_call(x, True, 0)
+    assert not plan.refresh_reliable()
+    plan.record_call(x, True, 0)
+    assert plan.refresh_reliable()
+    for _ in range(20):                             # brel = 6/27 now: the flag stays set
+        plan.record_call(x, False, 0)
+    assert not plan.stats().reliable
+    assert plan.refresh_reliable()
+    assert plan.plan_stats(100).reliable and plan.plan_stats(100).age == 100
