@@ -266,7 +266,8 @@ class LocalDriver:
                 continue
             t = agent.step_count + 1
             try:
-                self._motor = agent.step(t, self._obs)
+                self._motor = agent.step(t, self._obs,
+                                         discontinuity=bool(getattr(world, "discontinuity", False)))
             except InvalidObservation as e:
                 log.warning("step %d: %s", t, e)
             self._obs = world.step(self._motor)
