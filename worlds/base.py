@@ -8,12 +8,16 @@ A world is a continuous environment seen through named variables (§2 of the ref
   written as a float (``0.0``, ``1.0``, ...).
 
 Worlds never compute derivatives: the direction of change of a magnitude ``v`` (written
-``v.dot``) is the perception side's business. Tasks that need it compare two consecutive
-observations with the same zero band the agent uses (:data:`DOT_BAND`).
+``v.dot``) is the perception side's business, per second: (ṽ(t) − ṽ(t−1)) / ``step_seconds``
+with the zero band ±:data:`DOT_BAND` (the reference's [−0.05, 0.05], Table 8.1). Tasks that
+need it judge it exactly that way (:meth:`World.change`, :func:`direction`).
 
-One agent step is ``World.substeps`` physics substeps. Everything random in a world comes from
-``World.rng``, a :class:`numpy.random.Generator` seeded by ``reset(seed)``: the same seed and the
-same motor sequence give identical observations.
+One agent step is ``World.substeps`` physics substeps and lasts ``World.step_seconds`` seconds.
+When a world teleports something (a block replaced, a ball re-centred, an episode restarted) the
+observation after it is not continuous with the one before: ``World.discontinuity`` says so, and
+the agent breaks its histories there (no derivative, event or window spans the jump).
+Everything random in a world comes from ``World.rng``, a :class:`numpy.random.Generator` seeded
+by ``reset(seed)``: the same seed and the same motor sequence give identical observations.
 """
 
 from __future__ import annotations
@@ -38,9 +42,11 @@ __all__ = [
     "direction",
 ]
 
-#: The zero band the agent uses on directions of change: a per-step change ṽ(t) − ṽ(t−1)
-#: within ±DOT_BAND is "0" (reference §4.4.1, footnote 3). Tasks use it to judge ".dot" goals.
-DOT_BAND = 0.1
+#: The zero band of the agent's directions of change, per second: a derivative
+#: (ṽ(t) − ṽ(t−1)) / step_seconds within [−DOT_BAND, DOT_BAND] is "0" (Table 8.1's landmark
+#: [−0.05, 0.05] on every change variable; the reference's derivatives are per second, Tables
+#: 8.7–8.10). Tasks use it to judge ".dot" goals.
+DOT_BAND = 0.05
 
 
 class VarKind(enum.StrEnum):
@@ -84,9 +90,13 @@ class Goal:
     """For ``.dot`` variables one of ``"+"``, ``"0"``, ``"-"``; for nominal a label."""
 
 
-def direction(previous: float, current: float, band: float = DOT_BAND) -> str:
-    """The qualitative direction of change between two consecutive values: "+", "0" or "-"."""
-    change = current - previous
+def direction(previous: float, current: float, band: float = DOT_BAND, *, dt: float = 1.0) -> str:
+    """The qualitative direction of change between two consecutive values: "+", "0" or "-".
+
+    The derivative is ``(current − previous) / dt`` (``dt``: the world's ``step_seconds``); it is
+    "0" within the closed band ``[−band, band]``, as the agent's perception judges it.
+    """
+    change = (current - previous) / dt
     if change > band:
         return "+"
     if change < -band:
@@ -134,16 +144,27 @@ class Task(abc.ABC):
 class World(abc.ABC):
     """A continuous world seen through named variables.
 
-    Subclasses set ``name``, ``variables`` (motors first), ``substeps``, ``tasks`` and optionally
-    ``agent_options`` and ``constant_variables``, call :meth:`_init_variables`, and implement
-    :meth:`_reset` and :meth:`_step`, which return the full observation (every sensed variable,
-    available or not); this base class validates motors, counts steps and withholds variables
-    before their ``available_from`` step.
+    Subclasses set ``name``, ``variables`` (motors first), ``substeps``, ``step_seconds``,
+    ``tasks`` and optionally ``agent_options`` and ``constant_variables``, call
+    :meth:`_init_variables`, and implement :meth:`_reset` and :meth:`_step`, which return the full
+    observation (every sensed variable, available or not) and call :meth:`_mark_discontinuity`
+    when they teleport something; this base class validates motors, counts steps, sets
+    ``discontinuity`` on every step and withholds variables before their ``available_from`` step.
     """
 
     name: str
     variables: tuple[VariableSpec, ...]
     substeps: int
+    step_seconds: float
+    """The physical duration of one agent step, in seconds (core: 2 × 0.025 = 0.05). The agent's
+    directions of change are per second: (ṽ(t) − ṽ(t−1)) / step_seconds, zero band ±DOT_BAND.
+    A world with no physical time (a game) says how long its step is meant to last."""
+    discontinuity: bool = True
+    """True when the latest observation is not continuous with the one before it: the world
+    teleported something between them (a block replaced or moved after a let-go, a ball and
+    paddles re-centred, an episode restarted, or the caller placed the hand or block between
+    steps). True after ``reset()``; set by every ``step()``. The agent breaks its histories on
+    such a step: no derivative, event or soon-window spans the jump."""
     agent_options: Mapping[str, Any] = MappingProxyType({})
     tasks: Mapping[str, Task]
     constant_variables: ClassVar[tuple[str, ...]] = ()
@@ -178,6 +199,8 @@ class World(abc.ABC):
             sorted({v.available_from for v in variables if v.kind is not VarKind.MOTOR} - {0})
         )
         self._withheld: frozenset[str] = frozenset()
+        self._jumped = False
+        self.discontinuity = True
         self.step_count = 0
         self.observation = {}
         self.previous_observation = {}
@@ -209,23 +232,48 @@ class World(abc.ABC):
         self.rng = np.random.default_rng(seed)
         self.step_count = 0
         obs = self._reset()
-        self.previous_observation = obs
-        self.observation = obs
-        return self._publish(obs)
+        return self.restart_from(obs)
 
     def step(self, motor: Mapping[str, float]) -> dict[str, float]:
         """Apply the motor values for one agent step (``substeps`` physics steps).
 
         ``motor`` maps motor names to values; missing motors are 0 (or the nearest in-range
         value). Raises ValueError for an unknown motor name, a NaN or infinite value, or a value
-        outside the motor's range. Returns the observation after the step.
+        outside the motor's range. Returns the observation after the step; ``discontinuity`` says
+        whether it is continuous with the previous one.
         """
         values = self._motor_values(motor)
         self.step_count += 1
         obs = self._step(values)
         self.previous_observation = self.observation
         self.observation = obs
+        self.discontinuity = self._jumped
+        self._jumped = False
         return self._publish(obs)
+
+    def restart_from(self, obs: dict[str, float]) -> dict[str, float]:
+        """Start a fresh stream at ``obs``, the full observation of the current state.
+
+        As after ``reset()``: ``observation`` and ``previous_observation`` become ``obs``,
+        ``discontinuity`` is True, and the observation is returned with only the variables
+        available now. ``reset()`` ends with it; a task's ``setup`` that moves things after
+        ``reset()`` calls it with the observation of the state it set up.
+        """
+        self.previous_observation = obs
+        self.observation = obs
+        self.discontinuity = True
+        self._jumped = False
+        return self._publish(obs)
+
+    def change(self, name: str) -> str | None:
+        """The direction of change of magnitude ``name`` at the latest step, as the agent's
+        perception judges it: ``direction(previous, current, DOT_BAND, dt=step_seconds)``, i.e.
+        "+", "0" or "-"; None on a discontinuity step (no derivative spans a jump)."""
+        if self.discontinuity:
+            return None
+        return direction(
+            self.previous_observation[name], self.observation[name], dt=self.step_seconds
+        )
 
     def render_text(self, width: int = 60, height: int = 20) -> str:
         """A cheap drawing of the world for the terminal UI (default: the variable values)."""
@@ -244,7 +292,14 @@ class World(abc.ABC):
 
     @abc.abstractmethod
     def _step(self, motor: list[float]) -> dict[str, float]:
-        """Advance one agent step with motor values in table order; return the full observation."""
+        """Advance one agent step with motor values in table order; return the full observation.
+
+        Call :meth:`_mark_discontinuity` when the step teleports something."""
+
+    def _mark_discontinuity(self) -> None:
+        """The next observation will not be continuous with the latest one (a teleport during
+        ``_step``, or between steps by a caller placing things)."""
+        self._jumped = True
 
     # --- internals ------------------------------------------------------------------------
 

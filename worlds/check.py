@@ -6,6 +6,7 @@ with a message naming the world and the broken rule.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 
@@ -13,7 +14,24 @@ import numpy as np
 
 from worlds.base import Task, VariableSpec, VarKind, World
 
-__all__ = ["check_world", "random_motor"]
+__all__ = [
+    "JUMP_MEAN_FACTOR",
+    "JUMP_RANGE_FRACTION",
+    "JUMP_SCALE_FRACTION",
+    "check_world",
+    "random_motor",
+]
+
+#: A magnitude's change over one step is a *jump* when it exceeds this fraction of the
+#: variable's range over the check's run, :data:`JUMP_MEAN_FACTOR` times its mean change per step
+#: and :data:`JUMP_SCALE_FRACTION` of its largest magnitude; jumps must fall on steps the world
+#: marks as discontinuities.
+JUMP_RANGE_FRACTION = 0.4
+JUMP_MEAN_FACTOR = 8.0
+JUMP_SCALE_FRACTION = 0.01
+#: The check's random policy holds each motor's random value for 0..MAX_HOLD steps (like the
+#: agent's motor babbling, Appendix E), so that the hand travels and meets the block.
+MAX_HOLD = 20
 
 
 def _require(condition: object, message: str) -> None:
@@ -62,6 +80,14 @@ def _check_spec(world: World) -> None:
         _require(v.available_from >= 0, f"{where}: {v.name}: negative available_from")
     _require(any(v.kind is VarKind.MOTOR for v in variables), f"{where}: no motor")
     _require(isinstance(world.substeps, int) and world.substeps >= 1, f"{where}: substeps")
+    seconds = getattr(world, "step_seconds", None)
+    _require(
+        isinstance(seconds, (int, float))
+        and not isinstance(seconds, bool)
+        and math.isfinite(seconds)
+        and seconds > 0,
+        f"{where}: step_seconds must be a positive finite number of seconds, got {seconds!r}",
+    )
     _require(isinstance(world.agent_options, Mapping), f"{where}: agent_options not a Mapping")
     _require(isinstance(world.tasks, Mapping), f"{where}: tasks not a Mapping")
     for key, task in world.tasks.items():
@@ -96,36 +122,98 @@ def _check_obs(world: World, obs: object, step: int) -> None:
             )
 
 
-def _run(world: World, steps: int, seed: int) -> list[dict[str, float]]:
+def _check_flag(world: World, step: int) -> bool:
+    flag = getattr(world, "discontinuity", None)
+    _require(
+        type(flag) is bool,
+        f"world {world.name!r} at step {step}: discontinuity is {flag!r}, not a bool",
+    )
+    return flag  # type: ignore[return-value]
+
+
+def _run(world: World, steps: int, seed: int) -> tuple[list[dict[str, float]], list[bool]]:
+    """A random-motor run: each motor holds a uniform random value for 0..MAX_HOLD steps."""
     rng = np.random.default_rng(seed + 1)
     obs = world.reset(seed=seed)
     _require(world.step_count == 0, f"world {world.name!r}: step_count after reset is not 0")
     _check_obs(world, obs, 0)
-    trace = [obs]
+    _require(_check_flag(world, 0), f"world {world.name!r}: discontinuity is False after reset")
+    trace, flags = [obs], [True]
+    motor = random_motor(world, rng)
+    hold = {name: 0 for name in motor}
     for t in range(1, steps + 1):
-        obs = world.step(random_motor(world, rng))
+        fresh = random_motor(world, rng)
+        for name in motor:
+            if hold[name] <= 0:
+                motor[name] = fresh[name]
+                hold[name] = int(rng.integers(0, MAX_HOLD + 1))
+            hold[name] -= 1
+        obs = world.step(motor)
         _require(
             world.step_count == t, f"world {world.name!r}: step_count {world.step_count} != {t}"
         )
         _check_obs(world, obs, t)
         trace.append(obs)
-    return trace
+        flags.append(_check_flag(world, t))
+    return trace, flags
+
+
+def _check_jumps(world: World, trace: list[dict[str, float]], flags: list[bool]) -> None:
+    """Large changes of a magnitude happen only on steps marked as discontinuities."""
+    magnitudes = [v.name for v in world.variables if v.kind is VarKind.MAGNITUDE]
+    for name in magnitudes:
+        values = [obs[name] for obs in trace if name in obs]
+        if len(values) < 2:
+            continue
+        span = max(values) - min(values)
+        changes = [
+            (t, abs(cur[name] - prev[name]))
+            for t, (prev, cur) in enumerate(itertools.pairwise(trace), start=1)
+            if name in prev and name in cur and not flags[t]
+        ]
+        if span == 0 or not changes:
+            continue
+        mean = sum(c for _, c in changes) / len(changes)
+        scale = max(abs(v) for v in values)
+        limit = max(
+            JUMP_RANGE_FRACTION * span, JUMP_MEAN_FACTOR * mean, JUMP_SCALE_FRACTION * scale
+        )
+        for t, change in changes:
+            _require(
+                change <= limit,
+                (
+                    f"world {world.name!r}: {name} jumped by {change:.4g} at step {t} "
+                    f"({trace[t - 1][name]:.4g} -> {trace[t][name]:.4g}; range over the run "
+                    f"{span:.4g}, mean change {mean:.4g}) but discontinuity was False"
+                ),
+            )
 
 
 def check_world(world: World, steps: int = 300, seed: int = 0) -> None:
     """Check ``world`` against the contract; raise AssertionError naming what is wrong.
 
     Checked: the variable table (names unique, motors first with finite ranges, nominal labels),
-    ``substeps``, ``tasks``, ``agent_options``; that ``reset`` and every ``step`` of a random-motor
-    run of ``steps`` steps return exactly the variables available at that step, as finite floats
-    (nominal ones as label indices); that the run is identical when repeated with the same seed;
-    that no sensed variable stays constant over the run, except the world's declared
-    ``constant_variables`` (which must be constant) and ``rare_variables`` (rare events); and
-    that bad motor input raises ValueError.
+    ``substeps``, ``step_seconds`` (a positive number), ``tasks``, ``agent_options``; that
+    ``reset`` and every ``step`` of a random-motor run of ``steps`` steps (each motor holding a
+    uniform random value for 0..``MAX_HOLD`` steps) return exactly the variables available at
+    that step, as finite floats (nominal ones as label indices); that ``discontinuity`` is a bool
+    after every step and True after ``reset``; that no magnitude jumps on a step not marked as a
+    discontinuity (a jump: a change larger than ``JUMP_RANGE_FRACTION`` of the variable's range
+    over the run, ``JUMP_MEAN_FACTOR`` times its mean change per step and
+    ``JUMP_SCALE_FRACTION`` of its largest magnitude); that the run,
+    discontinuity flags included, is identical when repeated with the same seed; that no sensed
+    variable stays constant over the run, except the world's declared ``constant_variables``
+    (which must be constant) and ``rare_variables`` (rare events); and that bad motor input
+    raises ValueError.
     """
     _check_spec(world)
-    first = _run(world, steps, seed)
-    second = _run(world, steps, seed)
+    first, first_flags = _run(world, steps, seed)
+    second, second_flags = _run(world, steps, seed)
+    _require(
+        first_flags == second_flags,
+        f"world {world.name!r}: discontinuity flags not deterministic for seed {seed}",
+    )
+    _check_jumps(world, first, first_flags)
     for t, (a, b) in enumerate(zip(first, second, strict=True)):
         _require(
             a == b,

@@ -4,9 +4,11 @@ Each observation dimension becomes a magnitude variable and each action dimensio
 the Box's bounds as its range (a Discrete action space becomes one motor over [0, n − 1], rounded
 to the nearest action). Names come from ``obs_names`` / ``act_names`` (options of ``make``), or
 from the built-in table :data:`NAMES` for a few classic-control environments, or are ``obs_i`` /
-``act_i``. When an episode terminates or is truncated the environment is reset (seeded from the
-world's generator) and the observation after that reset is returned: the agent sees one endless
-stream. Rewards are ignored (QLAP learns without them); ``episodes`` counts the restarts.
+``act_i``. ``step_seconds`` is the env's ``dt`` when it has one (Pendulum-v1: 0.05; MuJoCo envs:
+timestep × frame skip), else 1.0 (a step is the time unit). When an episode terminates or is
+truncated the environment is reset (seeded from the world's generator) and the observation after
+that reset is returned: the agent sees one endless stream, in which that step is marked as a
+discontinuity. Rewards are ignored (QLAP learns without them); ``episodes`` counts the restarts.
 
 Gymnasium's passive environment checker is turned off (``disable_env_checker=True``): this
 wrapper checks actions itself against the variable table, and the checker's warnings would be
@@ -15,6 +17,7 @@ errors under the test suite's ``filterwarnings = error``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from types import MappingProxyType
 from typing import Any
@@ -36,6 +39,13 @@ NAMES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
         ("torque",),
     ),
 }
+
+
+def _step_seconds(dt: object) -> float:
+    """The env's ``dt`` (seconds per step) when it has a positive one, else 1.0."""
+    if isinstance(dt, int | float) and not isinstance(dt, bool) and math.isfinite(dt) and dt > 0:
+        return float(dt)
+    return 1.0
 
 
 class GymWorld(World):
@@ -96,6 +106,7 @@ class GymWorld(World):
         self.tasks = MappingProxyType({})
         self.agent_options = MappingProxyType({})
         self.episodes = 0
+        self.step_seconds = _step_seconds(getattr(self.env.unwrapped, "dt", None))
         self.reset()
 
     def _as_obs(self, raw: Any) -> dict[str, float]:
@@ -120,6 +131,7 @@ class GymWorld(World):
             action = np.asarray(motor, dtype=self._act_dtype).reshape(self._act_shape)
         raw, _reward, terminated, truncated, _info = self.env.step(action)
         if terminated or truncated:
+            self._mark_discontinuity()
             return self._restart()
         return self._as_obs(raw)
 

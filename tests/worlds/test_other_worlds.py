@@ -23,8 +23,34 @@ def test_core2d_friction_threshold_and_push() -> None:
     assert abs(world.hand.position.x - start) < 1e-6
     for _ in range(10):
         obs = world.step({"u_x": 400.0})
-    assert world.hand.position.x - start > 1.0
+    assert world.hand.position.x - start > 0.6  # (400 − 300) / 75 units/s, as in core
     assert obs["h_x"] > start
+    world.set_hand(-2.5, 0.5)
+    for _ in range(4):
+        previous = world.step({"u_x": 1000.0})["h_x"]
+    per_step = world.step({"u_x": 1000.0})["h_x"] - previous
+    assert per_step == pytest.approx(700 / 75 * world.step_seconds, rel=0.01)  # 0.47
+
+
+def test_core2d_push_moves_the_block_about_as_far_as_the_hand() -> None:
+    world = make("core2d")
+    assert isinstance(world, Core2DWorld)
+    world.reset(seed=1)
+    world.set_hand(-2.0, 0.0)
+    world.block.position = (1.0, 0.0)  # type: ignore[union-attr]
+    obs = world.step({})
+    while obs["x_LR"] < -0.02:
+        obs = world.step({"u_x": 1000.0})
+    hand0, block0 = obs["h_x"], world.block.position.x  # type: ignore[union-attr]
+    for _ in range(3):
+        obs = world.step({"u_x": 1000.0})
+    hand = obs["h_x"] - hand0
+    for _ in range(20):
+        obs = world.step({})
+        assert not world.discontinuity
+    block = world.block.position.x - block0  # type: ignore[union-attr]
+    assert hand - 0.02 < block < hand + 0.7
+    assert obs["z_F"] == 10.5
 
 
 def test_core2d_block_pushed_off_the_table_falls_and_is_replaced() -> None:
@@ -40,6 +66,7 @@ def test_core2d_block_pushed_off_the_table_falls_and_is_replaced() -> None:
             break
     assert min(z_f) < 1.0  # fell towards the floor
     assert world.block_replaced  # type: ignore[attr-defined]
+    assert world.discontinuity
     assert obs["z_F"] == 10.5
 
 

@@ -39,8 +39,10 @@ def test_task_trial_setup_places_block_within_reach() -> None:
         obs = world.tasks["pickup"].setup(world, rng)
         assert world.step_count == 0
         assert obs["z_F"] == pytest.approx(10.5, abs=0.01)
-        assert -8.0 < obs["T_L"] < 0.0
+        assert -7.0 <= obs["T_L"] <= -1.0  # x ∈ [−3, 3], at least 1 from the left edge
+        assert -6.0 <= obs["T_T"] <= -1.0  # y ∈ [−2, 3], at least 1 from the far edge
         assert not world.block_out_of_reach  # type: ignore[attr-defined]
+        assert world.discontinuity
 
 
 @pytest.mark.parametrize(
@@ -110,3 +112,23 @@ def test_snapshot_png(tmp_path: Path, spec: str, capsys: pytest.CaptureFixture[s
 
 def test_snapshot_rejects_non_mujoco_worlds(tmp_path: Path) -> None:
     assert main_snapshot(["--world", "pong", "--out", str(tmp_path / "p.png")]) == 2
+
+
+def test_contingent_ball_does_not_rise_by_itself_in_evaluation() -> None:
+    """§7.9.1: during evaluation the ball does not bounce up "without the agent having to do
+    anything" — at the per-second zero band even a bounce at restitution 0.1 would read as
+    ḟ_z → [+]; with the hand rising it does rise."""
+    world = make("core:contingent:rising")
+    task = world.tasks["contingent_up"]
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        obs = task.setup(world, rng)
+        world.set_hand(0.0, 0.5, 11.0)  # below the jump band, still
+        for _ in range(300):
+            obs = world.step({})
+            assert not task.is_success(world, obs)
+        for _ in range(20):
+            obs = world.step({"u_z": 1000.0})
+            if task.is_success(world, obs):
+                break
+        assert task.is_success(world, obs)

@@ -13,7 +13,9 @@ falls slowly in z (``FALL_ACCEL``) unless the hand makes it rise:
 * ``jump``: while h_z is within ``JUMP_BAND`` (the reference's (13.75, 14.25)) the ball jumps up
   ``JUMP_HEIGHT`` at once.
 
-It bounces at the bottom with ``restitution`` (the contingent_up task lowers it, §7.9.1).
+It bounces at the bottom with ``restitution`` (0.8 while learning); the contingent_up task sets
+it to 0 so that the ball does not bounce up "without the agent having to do anything" (§7.9.1):
+at the agent's per-second zero band (±0.05) even a bounce at restitution 0.1 reads as ḟ_z → [+].
 """
 
 from __future__ import annotations
@@ -82,11 +84,14 @@ class FloatingBalls:
                     vel[2] = max(vel[2], 0.0)
             for k in range(3):
                 pos[k] += vel[k] * DT
-                if pos[k] < BOX_LOW[k]:
+                if pos[k] < BOX_LOW[k] and contingent and k == 2:
+                    # The contingent ball's bounce loses speed and height alike: with
+                    # restitution 0 it stops on the bottom instead of popping back up.
+                    pos[k] = BOX_LOW[k] + (BOX_LOW[k] - pos[k]) * self.restitution
+                    vel[k] = -vel[k] * self.restitution
+                elif pos[k] < BOX_LOW[k]:
                     pos[k] = 2 * BOX_LOW[k] - pos[k]
                     vel[k] = -vel[k]
-                    if contingent and k == 2:
-                        vel[k] *= self.restitution
                 elif pos[k] > BOX_HIGH[k]:
                     pos[k] = 2 * BOX_HIGH[k] - pos[k]
                     vel[k] = -vel[k]

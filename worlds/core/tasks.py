@@ -2,7 +2,9 @@
 
 Each trial resets the world (seeded from the evaluator's generator), puts the block at a random
 place within reach and the hand at a random place (§7.2.1), and names the goal. Reward: −0.01 a
-step, +9.99 on the step the goal is reached; at most 300 steps.
+step, +9.99 on the step the goal is reached; at most 300 steps. Directions of change (".dot"
+goals) are judged as the agent's perception judges them, per second with the zero band ±0.05
+(``World.change``); a discontinuity step (a replaced block) is no motion.
 
 * ``move_block`` — move the block left (T_L.dot = "+"), right (T_R.dot = "-") or forward
   (T_T.dot = "+"), the goal chosen by footnote 2's rule from the block's place relative to the
@@ -12,7 +14,8 @@ step, +9.99 on the step the goal is reached; at most 300 steps.
 * ``hit_secondary`` (secondary variants) — m_BB = "true"; ends early when the primary block goes
   out of reach or off the table.
 * ``contingent_up`` (contingent variants) — f1_z.dot = "+"; step cost 0.1 (§7.9.3), motors held at
-  0 by an agent without a plan, the ball made less bouncy.
+  0 by an agent without a plan, the ball not bouncing (restitution 0: it should not rise
+  "without the agent having to do anything", §7.9.1).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from worlds.base import DOT_BAND, Goal, Task, World, direction
+from worlds.base import Goal, Task, World
 from worlds.core import world as core
 
 if TYPE_CHECKING:
@@ -48,9 +51,7 @@ def _setup_trial(world: CoreWorld, rng: np.random.Generator) -> dict[str, float]
     world.reset(seed=int(rng.integers(2**63 - 1)))
     world.random_hand(rng)
     world.place_block(rng)
-    obs = world._observe()
-    world.observation = world.previous_observation = obs
-    return world._publish(obs)
+    return world.restart_from(world._observe())
 
 
 class _CoreTask(Task):
@@ -97,14 +98,14 @@ class MoveBlock(_CoreTask):
     def goal(self, world: World, obs: Mapping[str, float]) -> Goal:
         return self.GOALS[self.choice]
 
-    def _moves(self, world: World) -> tuple[str, str] | None:
-        if world.block_replaced:  # type: ignore[attr-defined]
+    @staticmethod
+    def _moves(world: World) -> tuple[str, str] | None:
+        """(Ṫ_L, Ṫ_T) as the agent perceives them; None on a discontinuity (a replaced block
+        did not move). Ṫ_R is Ṫ_L: both are the block centre's x minus a fixed edge."""
+        dx, dy = world.change("T_L"), world.change("T_T")
+        if dx is None or dy is None:
             return None
-        prev, cur = world.previous_observation, world.observation
-        return (
-            direction(prev["T_L"], cur["T_L"], DOT_BAND),
-            direction(prev["T_T"], cur["T_T"], DOT_BAND),
-        )
+        return dx, dy
 
     def is_success(self, world: World, obs: Mapping[str, float]) -> bool:
         moves = self._moves(world)
@@ -172,7 +173,7 @@ class ContingentUp(_CoreTask):
     name = "contingent_up"
     step_cost = -0.1
     hold_motors_at_zero_without_plan = True
-    EVAL_RESTITUTION = 0.1
+    EVAL_RESTITUTION = 0.0  # §7.9.1: no bounce up without the agent doing anything
 
     def setup(self, world: World, rng: np.random.Generator) -> dict[str, float]:
         obs = _setup_trial(world, rng)  # type: ignore[arg-type]
@@ -183,8 +184,7 @@ class ContingentUp(_CoreTask):
         return Goal("f1_z.dot", "+")
 
     def is_success(self, world: World, obs: Mapping[str, float]) -> bool:
-        prev = world.previous_observation["f1_z"]
-        return direction(prev, world.observation["f1_z"], DOT_BAND) == "+"
+        return world.change("f1_z") == "+"
 
 
 def core_tasks(world: CoreWorld) -> dict[str, Task]:

@@ -2,22 +2,41 @@
 
 The scene (``core.xml`` beside this file): a table whose top is 10.5 above the floor, one block
 (a cube whose width is drawn from [1, 3] at each placement), and a hand (a 3 × 3 × 0.5 palm) on an
-orthogonal arm of three slide joints driven by force motors u_x, u_y, u_z. Dry friction on the
-slides (``frictionloss=300``) means about 300 units of force are needed before the hand moves;
-the arm's weight (250 down) means lifting needs more than 550 and lowering less than −50 (the
-reference learned landmarks near ±300 for u_x, u_y and 570 for u_z, Table 8.1). Above the
-threshold the hand moves (|u| − 300)/25 units per second, i.e. 0.2 units per agent step at |u| =
-400 and 1.4 at |u| = 1000.
+orthogonal arm of three slide joints driven by force motors u_x, u_y, u_z. One agent step is 2
+MuJoCo steps of 0.025 s (``step_seconds`` = 0.05).
+
+The hand. Dry friction on the slides (``frictionloss=300``) means about 300 units of force are
+needed before the hand moves; the arm's weight (250 down; the arm is gravity-compensated and the
+weight is the u_z actuator's bias) means lifting needs more than 550 and lowering less than −50
+(the reference learned landmarks near ±300 for u_x, u_y and 570 for u_z, Table 8.1). Above the
+threshold viscous damping (75) sets the speed, (|u| − 300)/75 units per second: 0.067 units per
+agent step at |u| = 400, 0.2 at 600 and 0.47 at 1000 (the reference's hand: 0.44–0.48 per step,
+Table 8.9). The reach x ∈ [−2.5, 2.5], y ∈ [−2, 3], z ∈ [11, 14.5] ends in hard stops: the hand
+rests exactly at a limit while pushed against it.
+
+The block and the table. Gravity is 140 units/s² (9.8 m/s² at about 7 cm a unit: the table is
+10.5 high). A block has three slide joints (it moves, never turns or tips) and rests on the table
+through a small foot at the centre of its bottom, so it falls off an edge when its centre passes
+the edge; its sliding friction is Coulomb friction of 0.6 × its weight (0.25 × 140) on the x and
+y slides while it rests on the table (none while lifted or falling), so a push moves it about
+as far as the hand travels plus ≲ 0.5 (v²/2μg at the hand's top speed). Hand–block and
+block–block contacts are frictionless: a push moves the block along the normal of the face that
+is pushed. The table top is rigid (a block that sank into it after a drop is put back on it).
+The table spans x ∈ [−17, 4], y ∈ [−6, 4]: its left (+x) and far (+y) edges are within pushing
+reach (the reference's T_L and T_T landmarks near 0, Table 8.1), and it reaches far to the
+robot's right (the T_R landmarks at 12.3–21.1), so a block pushed right or towards the robot
+stays on the table, out of reach, and is replaced.
 
 Frame (the reference's, Table 8.1 and §8.1.1): **+x is the robot's left**, +y is forward (away
-from the robot), +z is up. The hand's reach is x ∈ [−2.5, 2.5], y ∈ [−2, 3], z ∈ [11, 14.5].
+from the robot), +z is up.
 
 Sticky-mitten grasp (§7.1): the block is grasped when hand and block touch and the hand's centre
 is within 1.5 of the block's centre in x–y; each grasped step it is let go with probability 0.1
 (or when u_UG > 0.5), and when let go it is moved to a new place with probability 0.5. The block is
 replaced when it hits the floor (bang is true on that step; it is replaced at the start of the
 next), when it is out of reach and still, or when it has been out of reach for 100 steps
-(footnote 1).
+(footnote 1). A replaced or moved block, and a hand or block placed between steps (``set_hand``,
+``place_block``), make the next observation a discontinuity (``World.discontinuity``).
 
 Variants (options of this one world, ``make("core:VARIANT[:OPTION]")``):
 
@@ -57,7 +76,11 @@ HAND_OFFSET = (0.0, 0.5, 12.75)  # hand centre when the slide joints are at 0
 HAND_LOW = (-2.5, -2.0, 11.0)
 HAND_HIGH = (2.5, 3.0, 14.5)
 TABLE_TOP = 10.5
-TABLE_CORE = (-4.0, 4.0, -6.0, 4.0)  # x_right, x_left, y_near, y_far (reference frame)
+#: The table's edges (reference frame): x_right, x_left, y_near, y_far. The left and far edges are
+#: within pushing reach (the reference's T_L and T_T landmarks near 0, Table 8.1, are the edges a
+#: block falls off); the table reaches 17 beyond the hand's centre to the robot's right (its T_R
+#: landmarks at 12.3–21.1 put the right edge about 21 from the left one) and 6 towards the robot.
+TABLE_CORE = (-17.0, 4.0, -6.0, 4.0)
 TABLE_SECONDARY = (-9.0, 9.0, -6.0, 8.0)
 REACH = (
     HAND_LOW[0] - HAND_HALF,
@@ -65,10 +88,21 @@ REACH = (
     HAND_LOW[1] - HAND_HALF,
     HAND_HIGH[1] + HAND_HALF,
 )
-PLACE_X = (-3.0, 3.0)  # where a block's centre is placed
+PLACE_X = (-3.0, 3.0)  # where a block's centre is placed (§7.2.1: within reach)
 PLACE_Y = (-2.0, 3.0)
+#: A block's centre is placed at least this far from an edge it can fall off (it falls when its
+#: centre passes the edge): a push of a few steps does not drop it, a longer one can.
+EDGE_MARGIN = 1.0
 WIDTH = (1.0, 3.0)
-BLOCK_MASS = 0.5
+BLOCK_MASS = 0.25
+#: The block's sliding friction on the table: Coulomb friction of this times its weight on its x
+#: and y slides (decelerating it at 0.6 × 140 = 84 units/s²; core.xml's contacts are frictionless).
+BLOCK_FRICTION = 0.6
+TABLE_HALF_Z = 1.0  # half the thickness of the table's top (core.xml)
+FOOT_RADIUS = 0.05  # the block's foot (core.xml)
+#: How deep a resting block's foot is placed into the table top, so that the contact holds it
+#: from the first substep (at depth 0 MuJoCo has no contact yet and the block would drop).
+REST_DEPTH = 1e-4
 
 GRASP_DISTANCE = 1.5
 LET_GO_PROB = 0.1
@@ -173,6 +207,7 @@ class CoreWorld(World):
     """The core table world; see the module docstring for the physics and the variants."""
 
     substeps = SUBSTEPS
+    step_seconds = TIMESTEP * SUBSTEPS
 
     def __init__(
         self,
@@ -248,61 +283,69 @@ class CoreWorld(World):
         if self.balls is None:
             spec.delete(spec.body("float1"))
             spec.delete(spec.body("float2"))
-        spec.geom("block").mass = BLOCK_MASS
-        if self.secondary:
-            spec.geom("block2").mass = BLOCK_MASS
+        for block in ("block", "block2") if self.secondary else ("block",):
+            spec.geom(block).mass = BLOCK_MASS
+        #: Coulomb friction on a block's x and y slides while its foot touches the table or the
+        #: floor (switched off while it is lifted or falls).
+        self._sliding_friction = BLOCK_FRICTION * BLOCK_MASS * -float(spec.option.gravity[2])
         x_right, x_left, y_near, y_far = self.table
         half_x, half_y = (x_left - x_right) / 2, (y_far - y_near) / 2
+        leg = (TABLE_TOP - 2 * TABLE_HALF_Z) / 2
         table = spec.body("table")
-        table.pos = [0.0, (y_far + y_near) / 2, TABLE_TOP - 0.25]
-        spec.geom("table").size = [half_x, half_y, 0.25]
+        # MuJoCo's x is the reference's −x.
+        table.pos = [-(x_left + x_right) / 2, (y_far + y_near) / 2, TABLE_TOP - TABLE_HALF_Z]
+        spec.geom("table").size = [half_x, half_y, TABLE_HALF_Z]
         for name, sx, sy in (("leg1", 1, 1), ("leg2", -1, 1), ("leg3", 1, -1), ("leg4", -1, -1)):
-            spec.geom(name).pos = [sx * (half_x - 0.4), sy * (half_y - 0.4), -5.25]
+            geom = spec.geom(name)
+            geom.pos = [sx * (half_x - 0.4), sy * (half_y - 0.4), -TABLE_HALF_Z - leg]
+            geom.size = [0.25, 0.25, leg]
         self.model = model = spec.compile()
         self.data = mujoco.MjData(model)
         gid = lambda name: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name)  # noqa: E731
         bid = lambda name: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)  # noqa: E731
-        self._g_hand, self._g_block, self._g_floor = gid("hand"), gid("block"), gid("floor")
-        self._b_hand, self._b_block = bid("hand"), bid("block")
+        jid = lambda name: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)  # noqa: E731
         ng = model.ngeom
-        self._pair_hand_block = min(self._g_hand, self._g_block) * ng + max(
-            self._g_hand, self._g_block
-        )
-        self._pair_floor_block = min(self._g_floor, self._g_block) * ng + max(
-            self._g_floor, self._g_block
-        )
+        pair = lambda a, b: min(a, b) * ng + max(a, b)  # noqa: E731
+        self._g_hand, self._g_block, self._g_floor = gid("hand"), gid("block"), gid("floor")
+        self._g_foot = gid("block_foot")
+        self._b_hand, self._b_block = bid("hand"), bid("block")
+        self._pair_hand_block = pair(self._g_hand, self._g_block)
+        self._pair_floor_block = pair(self._g_floor, self._g_foot)
+        self._pair_table_block = pair(gid("table"), self._g_foot)
+        # The block's three slide joints x, y, z are consecutive in qpos and qvel.
+        self._qadr_block = model.jnt_qposadr[jid("block_x")]
+        self._vadr_block = model.jnt_dofadr[jid("block_x")]
         if self.secondary:
             self._g_block2, self._b_block2 = gid("block2"), bid("block2")
-            a, b = sorted((self._g_block, self._g_block2))
-            self._pair_blocks = a * ng + b
-            c, d = sorted((self._g_floor, self._g_block2))
-            self._pair_floor_block2 = c * ng + d
-        self._qadr_block = model.jnt_qposadr[
-            mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "block")
-        ]
-        self._vadr_block = model.jnt_dofadr[
-            mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "block")
-        ]
-        if self.secondary:
-            j2 = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "block2")
-            self._qadr_block2 = model.jnt_qposadr[j2]
-            self._vadr_block2 = model.jnt_dofadr[j2]
+            self._g_foot2 = gid("block2_foot")
+            self._pair_blocks = pair(self._g_block, self._g_block2)
+            self._pair_floor_block2 = pair(self._g_floor, self._g_foot2)
+            self._pair_table_block2 = pair(gid("table"), self._g_foot2)
+            self._qadr_block2 = model.jnt_qposadr[jid("block2_x")]
+            self._vadr_block2 = model.jnt_dofadr[jid("block2_x")]
         self._eq_grasp = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, "grasp")
+        self._hand_range = [
+            tuple(float(r) for r in model.jnt_range[jid(name)])
+            for name in ("hand_x", "hand_y", "hand_z")
+        ]
 
-    def _set_width(self, geom: int, body: int, width: float) -> None:
+    def _set_width(self, geom: int, foot: int, width: float) -> None:
+        """Resize a block's box (a cube of ``width``) and keep its foot at the bottom's centre."""
         m = self.model
         half = width / 2
         m.geom_size[geom] = (half, half, half)
         m.geom_rbound[geom] = half * math.sqrt(3.0)
         m.geom_aabb[geom] = (0.0, 0.0, 0.0, half, half, half)
-        inertia = BLOCK_MASS * width * width / 6.0
-        m.body_inertia[body] = (inertia, inertia, inertia)
+        m.geom_pos[foot] = (0.0, 0.0, -half + FOOT_RADIUS)
 
     # --- placing things ---------------------------------------------------------------------
 
     def set_hand(self, x: float, y: float, z: float) -> None:
-        """Put the hand at (x, y, z) (reference frame), at rest. Releases a grasped block."""
+        """Put the hand at (x, y, z) (reference frame), at rest. Releases a grasped block.
+
+        A teleport: the next observation is marked as a discontinuity."""
         self._release()
+        self._mark_discontinuity()
         q = self.data.qpos
         q[0] = min(max(x, HAND_LOW[0]), HAND_HIGH[0]) - HAND_OFFSET[0]
         q[1] = min(max(y, HAND_LOW[1]), HAND_HIGH[1]) - HAND_OFFSET[1]
@@ -317,9 +360,14 @@ class CoreWorld(World):
         )
 
     def _put_block(self, qadr: int, vadr: int, x: float, y: float, width: float) -> None:
-        q = self.data.qpos
-        q[qadr : qadr + 7] = (-x, y, TABLE_TOP + width / 2 + 0.001, 1.0, 0.0, 0.0, 0.0)
-        self.data.qvel[vadr : vadr + 6] = 0.0
+        self.data.qpos[qadr : qadr + 3] = (-x, y, TABLE_TOP + width / 2 - REST_DEPTH)
+        self.data.qvel[vadr : vadr + 3] = 0.0
+        self._support(vadr, True)
+
+    def _support(self, vadr: int, supported: bool) -> None:
+        """Switch the block's sliding friction on (its foot is on the table or the floor) or off
+        (lifted in the hand, or falling)."""
+        self.model.dof_frictionloss[vadr : vadr + 2] = self._sliding_friction if supported else 0.0
 
     def place_block(
         self,
@@ -330,16 +378,18 @@ class CoreWorld(World):
     ) -> None:
         """Put the block at a random place within reach (or at the given one), clear of the hand.
 
-        In the secondary variant the second block is placed again too (aligned or unaligned).
+        The centre is drawn in ``PLACE_X`` × ``PLACE_Y``, at least ``EDGE_MARGIN`` from the
+        table's edges. In the secondary variant the second block is placed again too (aligned or
+        unaligned). A teleport: the next observation is marked as a discontinuity.
         """
         self._release()
+        self._mark_discontinuity()
         width = float(rng.uniform(*WIDTH)) if width is None else width
         hx, hy, hz = self.hand_position()
         x_right, x_left, _, y_far = self.table
-        margin = 0.25
-        lo_x = max(PLACE_X[0], x_right + width / 2 + margin)
-        hi_x = min(PLACE_X[1], x_left - width / 2 - margin)
-        hi_y = min(PLACE_Y[1], y_far - width / 2 - margin)
+        lo_x = max(PLACE_X[0], x_right + EDGE_MARGIN)
+        hi_x = min(PLACE_X[1], x_left - EDGE_MARGIN)
+        hi_y = min(PLACE_Y[1], y_far - EDGE_MARGIN)
         bx, by = x, y
         for _ in range(50):
             bx = float(rng.uniform(lo_x, hi_x)) if x is None else x
@@ -354,7 +404,7 @@ class CoreWorld(World):
         else:  # no clear place found: lift the hand out of the way
             self.set_hand(hx, hy, HAND_HIGH[2])
         self.width = width
-        self._set_width(self._g_block, self._b_block, width)
+        self._set_width(self._g_block, self._g_foot, width)
         self._put_block(self._qadr_block, self._vadr_block, bx, by, width)
         if self.secondary:
             self._place_secondary(rng, bx, by)
@@ -376,7 +426,7 @@ class CoreWorld(World):
         else:
             y2 = float(rng.uniform(y_near + width2 / 2 + 0.3, y_far - width2 / 2 - 0.3))
         self.width2 = width2
-        self._set_width(self._g_block2, self._b_block2, width2)
+        self._set_width(self._g_block2, self._g_foot2, width2)
         self._put_block(self._qadr_block2, self._vadr_block2, x2, y2, width2)
 
     def hand_position(self) -> tuple[float, float, float]:
@@ -453,6 +503,10 @@ class CoreWorld(World):
         ctrl = d.ctrl
         ctrl[0], ctrl[1], ctrl[2] = motor[0], motor[1], motor[2]
         mujoco.mj_step(self.model, d, SUBSTEPS)
+        self._hard_stops()
+        self._rest_on_table(self._qadr_block, self._vadr_block, self.width)
+        if self.secondary:
+            self._rest_on_table(self._qadr_block2, self._vadr_block2, self.width2)
 
         # Contacts of the last substep, as sorted geom-pair codes.
         pairs: set[int] = set()
@@ -466,8 +520,13 @@ class CoreWorld(World):
             if (hx - bx) ** 2 + (hy - by) ** 2 < GRASP_DISTANCE**2:
                 self._grasp()
         self.bang = self._pair_floor_block in pairs
+        self._support(self._vadr_block, self.bang or self._pair_table_block in pairs)
         if self.secondary:
             self.touching_blocks = self._pair_blocks in pairs
+            self._support(
+                self._vadr_block2,
+                self._pair_floor_block2 in pairs or self._pair_table_block2 in pairs,
+            )
         half = self.width / 2
         out = (
             bx - half > REACH[1]
@@ -493,6 +552,36 @@ class CoreWorld(World):
         if self.n_random:
             self._randoms = rng.random(self.n_random).tolist()
         return self._observe()
+
+    def _hard_stops(self) -> None:
+        """The arm's joint limits are hard stops: a hand that went past one (MuJoCo's limits are
+        soft, and spring back over several steps) is put on it, its outward speed removed. So the
+        hand rests exactly at a limit while pushed against it (no false ḣ → [−] after a hit)."""
+        q, v = self.data.qpos, self.data.qvel
+        for i in range(3):
+            lo, hi = self._hand_range[i]
+            if q[i] < lo:
+                q[i] = lo
+                v[i] = max(v[i], 0.0)
+            elif q[i] > hi:
+                q[i] = hi
+                v[i] = min(v[i], 0.0)
+
+    def _rest_on_table(self, qadr: int, vadr: int, width: float) -> None:
+        """The table top is rigid: a block whose centre is over it and whose bottom sank into it
+        (MuJoCo's soft contact lets a dropped block sink ~0.05 and rise back over several
+        steps) is put on it, its downward speed removed."""
+        q, v = self.data.qpos, self.data.qvel
+        x, y, z = -float(q[qadr]), float(q[qadr + 1]), float(q[qadr + 2])
+        x_right, x_left, y_near, y_far = self.table
+        bottom = z - width / 2
+        if (
+            x_right <= x <= x_left
+            and y_near <= y <= y_far
+            and TABLE_TOP - 2 * TABLE_HALF_Z < bottom < TABLE_TOP - REST_DEPTH
+        ):
+            q[qadr + 2] = TABLE_TOP + width / 2 - REST_DEPTH
+            v[vadr + 2] = max(float(v[vadr + 2]), 0.0)
 
     def _observe(self) -> dict[str, float]:
         hx, hy, hz = self.hand_position()

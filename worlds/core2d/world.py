@@ -1,15 +1,18 @@
 """The 2D core world of §7.7, in pymunk: the core world seen from above, the hand moving in x, y.
 
 Same frame, table, hand and block sizes as ``core`` (+x is the robot's left, +y forward; the hand
-is a 3 × 3 palm with centre in x ∈ [−2.5, 2.5], y ∈ [−2, 3]; the block a square of width 1–3).
-Removed from Table 7.1 (§7.7.1): u_z, u_UG, h_z, z_BT, c_x, c_y, T and bang. Table friction is
-a top-down pivot joint with a bounded force on each body (pymunk's usual trick): 300 units of
-force on the hand before it moves, then a viscous drag of 25 per unit of speed (0.2 units per
-step at |u| = 400) and motors saturating at 600 (0.6 units per step), as in ``core``.
+is a 3 × 3 palm with centre in x ∈ [−2.5, 2.5], y ∈ [−2, 3], its limits hard stops; the block a
+square of width 1–3; the table x ∈ [−17, 4], y ∈ [−6, 4]). Removed from Table 7.1 (§7.7.1): u_z,
+u_UG, h_z, z_BT, c_x, c_y, T and bang. Table friction is a top-down pivot joint with a bounded
+force on each body (pymunk's usual trick): 300 units of force on the hand before it moves, then
+a viscous drag of 75 per unit of speed, (|u| − 300) / 75 units/s (0.47 units per step at
+|u| = 1000), as in ``core``; the block (mass 0.25) has the friction of ``core``'s, 0.6 × its
+weight at gravity 140, so a push moves it about as far as the hand travels.
 
 A block whose centre leaves the table falls: z_F drops from 10.5 under gravity, and when it
-reaches 0 the block is replaced (at the start of the next step). It is also replaced when out of
-reach and still, or out of reach for 100 steps.
+reaches 0 the block is replaced (at the start of the next step, a discontinuity). It is also
+replaced when out of reach and still, or out of reach for 100 steps. One agent step is 2 × 0.025
+s = 0.05 s (``step_seconds``).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from typing import Any
 import numpy as np
 import pymunk
 
-from worlds.base import DOT_BAND, Goal, Task, VariableSpec, VarKind, World, direction
+from worlds.base import Goal, Task, VariableSpec, VarKind, World
 
 __all__ = ["Core2DWorld", "make_core2d"]
 
@@ -32,20 +35,20 @@ HAND_LOW = (-2.5, -2.0)
 HAND_HIGH = (2.5, 3.0)
 HAND_MASS = 2.2
 FRICTION = 300.0
-DRAG = 25.0
-SATURATION = 600.0
+DRAG = 75.0
 FORCE = 1000.0
-BLOCK_MASS = 0.5
-BLOCK_FRICTION = 0.6 * BLOCK_MASS * 9.81
-TABLE = (-4.0, 4.0, -6.0, 4.0)  # x_right, x_left, y_near, y_far
+GRAVITY = 140.0  # units/s², as in core (9.8 m/s² at about 7 cm a unit)
+BLOCK_MASS = 0.25
+BLOCK_FRICTION = 0.6 * BLOCK_MASS * GRAVITY
+TABLE = (-17.0, 4.0, -6.0, 4.0)  # x_right, x_left, y_near, y_far, as in core
 TABLE_TOP = 10.5
 REACH = (-4.0, 4.0, -3.5, 4.5)
 PLACE_X = (-3.0, 3.0)
 PLACE_Y = (-2.0, 3.0)
+EDGE_MARGIN = 1.0  # a block's centre is placed at least this far from the table's edges
 WIDTH = (1.0, 3.0)
 STILL_SPEED = 0.1
 OUT_OF_REACH_STEPS = 100
-GRAVITY = 9.81
 
 _M = VarKind.MAGNITUDE
 VARIABLES = (
@@ -89,8 +92,7 @@ class MoveBlock2D(Task):
             float(rng.uniform(HAND_LOW[1], HAND_HIGH[1])),
         )
         w.place_block(rng)
-        obs = w._observe()
-        w.observation = w.previous_observation = obs
+        obs = w.restart_from(w._observe())
         hx = w.hand.position.x
         bx, by = w.block.position
         half = w.width / 2
@@ -106,18 +108,18 @@ class MoveBlock2D(Task):
                 )
             )
             self.choice = options[int(rng.integers(len(options)))]
-        return dict(obs)
+        return obs
 
     def goal(self, world: World, obs: Any) -> Goal:
         return self.GOALS[self.choice]
 
-    def _moves(self, world: World) -> tuple[str, str] | None:
-        if world.block_replaced:  # type: ignore[attr-defined]
+    @staticmethod
+    def _moves(world: World) -> tuple[str, str] | None:
+        """(Ṫ_L, Ṫ_T) as the agent perceives them; None on a discontinuity."""
+        dx, dy = world.change("T_L"), world.change("T_T")
+        if dx is None or dy is None:
             return None
-        prev, cur = world.previous_observation, world.observation
-        return direction(prev["T_L"], cur["T_L"], DOT_BAND), direction(
-            prev["T_T"], cur["T_T"], DOT_BAND
-        )
+        return dx, dy
 
     def is_success(self, world: World, obs: Any) -> bool:
         moves = self._moves(world)
@@ -136,6 +138,7 @@ class Core2DWorld(World):
 
     name = "core2d"
     substeps = SUBSTEPS
+    step_seconds = DT * SUBSTEPS
 
     def __init__(self) -> None:
         self._init_variables(VARIABLES)
@@ -178,7 +181,8 @@ class Core2DWorld(World):
         self.width = width
 
     def set_hand(self, x: float, y: float) -> None:
-        """Put the hand at (x, y), at rest."""
+        """Put the hand at (x, y), at rest (a teleport: the next step is a discontinuity)."""
+        self._mark_discontinuity()
         self.hand.position = (
             min(max(x, HAND_LOW[0]), HAND_HIGH[0]),
             min(max(y, HAND_LOW[1]), HAND_HIGH[1]),
@@ -186,12 +190,14 @@ class Core2DWorld(World):
         self.hand.velocity = (0.0, 0.0)
 
     def place_block(self, rng: np.random.Generator) -> None:
-        """Put a new block (random width) at a random place within reach, clear of the hand."""
+        """Put a new block (random width) at a random place within reach, clear of the hand (a
+        teleport: the next step is a discontinuity)."""
+        self._mark_discontinuity()
         width = float(rng.uniform(*WIDTH))
         hx, hy = self.hand.position
-        lo_x = max(PLACE_X[0], TABLE[0] + width / 2 + 0.25)
-        hi_x = min(PLACE_X[1], TABLE[1] - width / 2 - 0.25)
-        hi_y = min(PLACE_Y[1], TABLE[3] - width / 2 - 0.25)
+        lo_x = max(PLACE_X[0], TABLE[0] + EDGE_MARGIN)
+        hi_x = min(PLACE_X[1], TABLE[1] - EDGE_MARGIN)
+        hi_y = min(PLACE_Y[1], TABLE[3] - EDGE_MARGIN)
         for _ in range(50):
             bx, by = float(rng.uniform(lo_x, hi_x)), float(rng.uniform(PLACE_Y[0], hi_y))
             if (
@@ -224,8 +230,7 @@ class Core2DWorld(World):
             self._pending_replace = False
             self.place_block(self.rng)
             self.block_replaced = True
-        fx = max(-SATURATION, min(SATURATION, motor[0]))
-        fy = max(-SATURATION, min(SATURATION, motor[1]))
+        fx, fy = motor[0], motor[1]
         hand, block, space = self.hand, self.block, self.space
         assert block is not None
         for _ in range(SUBSTEPS):

@@ -33,6 +33,7 @@ BALL_SPEED_Y = (0.1, 0.35)
 MAX_SPEED_Y = 0.5
 BALL_RADIUS = 0.3
 DEAD_BAND = 0.05
+STEP_SECONDS = 1.0
 
 _M = VarKind.MAGNITUDE
 VARIABLES = (
@@ -84,6 +85,7 @@ class PongWorld(World):
 
     name = "pong"
     substeps = 1
+    step_seconds = STEP_SECONDS
     constant_variables = ("l_x", "r_x")
 
     def __init__(self, random_paddles: bool = False) -> None:
@@ -116,6 +118,7 @@ class PongWorld(World):
         if self.missed:
             self.missed = False
             self._new_volley()
+            self._mark_discontinuity()
         u = motor[0]
         move = PADDLE_SPEED if u > DEAD_BAND else (-PADDLE_SPEED if u < -DEAD_BAND else 0.0)
         self.paddle_y = min(max(self.paddle_y + move, PADDLE_HALF), HEIGHT - PADDLE_HALF)
