@@ -105,7 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     curve = sub.add_parser(
         "curve", help="evaluate every checkpoint of runs on a task: curve.csv and curve.png",
         description="Evaluate every checkpoint of each RUN_DIR (checkpoints/step-NNNNNNN/, "
-                    "and final unless a step-N has its step) on TASK with the protocol of "
+                    "and final unless a step-N has its step; with --every N only the steps "
+                    "that are multiples of N, and the last) on TASK with the protocol of "
                     "`qlap eval` (§7.2), in parallel worker processes, and the random policy "
                     "on the same world, task, trials and seed. Writes curve.csv (resumable: "
                     "evaluations already there are not recomputed) and curve.png (mean reward "
@@ -130,6 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
     curve.add_argument("--world", default=None,
                        help="world spec, when the checkpoints do not record theirs (default: "
                             "the world of RUN_DIR/summary.json)")
+    curve.add_argument("--every", type=_positive, default=None, metavar="N",
+                       help="evaluate only the checkpoints whose step is a multiple of N, "
+                            "plus each run's last (default: every checkpoint)")
 
     report = sub.add_parser(
         "report", help="what runs know, beside the reference's figures (ch. 8)",
@@ -137,8 +141,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "or its latest checkpoint) beside the reference's: window k, change and "
                     "magnitude DBNs, landmarks per variable, values narrower than the "
                     "resolution, the u_x friction landmarks, rel(a) of a(ḣ_x,[+]), "
-                    "a(Ṫ_L,[+]) and a(T,true) with their plans. Several runs: one column "
-                    "each and the mean. See docs/analysis.md.")
+                    "a(Ṫ_L,[+]) and a(T,true) with their plans; then the knowledge over time "
+                    "(change and magnitude DBNs, plans, landmarks at every checkpoint) with the "
+                    "verdict 'change DBNs ≤ 600 and not growing after 150k', and each run's "
+                    "speed (summary.json steps_per_s). Several runs: one column each and the "
+                    "mean. See docs/analysis.md.")
     report.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
                         help="run directories (or agent checkpoint directories)")
     report.add_argument("--json", action="store_true",
@@ -491,7 +498,8 @@ def _cmd_analysis(args: argparse.Namespace) -> int:
     try:
         if args.command == "curve":
             return main_curve(args.runs, args.task, args.trials, args.jobs, args.seed,
-                              args.out, args.world, echo=lambda s: print(s, flush=True))
+                              args.out, args.world, echo=lambda s: print(s, flush=True),
+                              every=args.every)
         print(main_report(args.runs, as_json=args.json))
     except AnalysisError as exc:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)

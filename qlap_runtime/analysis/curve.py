@@ -10,7 +10,9 @@ standard error", §7.3). The random policy of the same world, task, trials and s
 dashed line.
 
 ``curve.csv`` keeps every evaluation; one already there for the same run, checkpoint step,
-world, task, trials and seed is not recomputed, so an interrupted curve resumes.
+world, task, trials and seed is not recomputed, so an interrupted curve resumes. ``every``
+(``--every N``) thins the checkpoints to those whose step is a multiple of N, plus each run's
+last, to make curves of many seeds and tasks affordable.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ __all__ = [
     "main_curve",
     "plot_curve",
     "read_rows",
+    "select_every",
     "write_rows",
 ]
 
@@ -288,6 +291,19 @@ def _collect(run_dirs: list[Path], labels: list[str],
     return checkpoints, specs.pop()
 
 
+def select_every(checkpoints: Sequence[Checkpoint], every: int | None) -> list[Checkpoint]:
+    """The checkpoints whose step is a multiple of ``every``, plus each run's last one (all of
+    them when ``every`` is None)."""
+    if every is None:
+        return list(checkpoints)
+    if every < 1:
+        raise AnalysisError(f"--every must be a positive number of steps, got {every}")
+    last: dict[str, int] = {}
+    for c in checkpoints:
+        last[c.run] = max(last.get(c.run, c.step), c.step)
+    return [c for c in checkpoints if c.step % every == 0 or c.step == last[c.run]]
+
+
 def _run_pending(pending: list[tuple[Key, EvalJob, Checkpoint | None]], jobs: int,
                  done: dict[Key, CurveRow], csv_path: Path,
                  echo: Callable[[str], None]) -> int:
@@ -327,8 +343,11 @@ def _run_pending(pending: list[tuple[Key, EvalJob, Checkpoint | None]], jobs: in
 
 def main_curve(run_dirs: Sequence[Path], task: str, trials: int = 100, jobs: int | None = None,
                seed: int = 0, out: Path | None = None, world: str | None = None,
-               echo: Callable[[str], None] = print) -> int:
+               echo: Callable[[str], None] = print, every: int | None = None) -> int:
     """``qlap curve``: evaluate, write curve.csv and curve.png, print progress and the table.
+
+    ``every``: evaluate only the checkpoints whose step is a multiple of it, plus each run's
+    last (:func:`select_every`); None: all of them.
 
     Returns 0, or 1 when an evaluation failed (the others are written). Raises
     :class:`AnalysisError` for unusable arguments.
@@ -341,6 +360,8 @@ def main_curve(run_dirs: Sequence[Path], task: str, trials: int = 100, jobs: int
     out_dir = Path(out) if out is not None else run_dirs[0]
     labels = run_labels(run_dirs)
     checkpoints, spec = _collect(run_dirs, labels, world)
+    n_found = len(checkpoints)
+    checkpoints = select_every(checkpoints, every)
     _check_task(spec, task)
 
     wanted: list[tuple[Key, EvalJob, Checkpoint | None]] = [
@@ -359,7 +380,10 @@ def main_curve(run_dirs: Sequence[Path], task: str, trials: int = 100, jobs: int
                     done.setdefault(r.key, r)
     pending = [w for w in wanted if w[0] not in done]
     jobs = min(jobs or os.cpu_count() or 1, max(1, len(pending)))
-    echo(f"{len(checkpoints)} checkpoints of {len(run_dirs)} run(s) on {spec} {task}, "
+    chosen = (f"{len(checkpoints)} checkpoints" if every is None else
+              f"{len(checkpoints)} of {n_found} checkpoints (steps multiple of {every:,}, and "
+              "each run's last)")
+    echo(f"{chosen} of {len(run_dirs)} run(s) on {spec} {task}, "
          f"{trials} trials, seed {seed}: {len(wanted) - len(pending)} of {len(wanted)} "
          f"evaluations (the random policy's included) already in {csv_path}; "
          + (f"{len(pending)} to run on {jobs} worker process(es)" if pending

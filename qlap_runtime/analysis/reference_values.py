@@ -11,12 +11,18 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 __all__ = [
+    "ABOVE_RANDOM",
     "ACTIONS",
     "CHANGE_DBNS",
+    "CHANGE_DBN_LIMIT",
     "FRICTION_BAND",
+    "GROWTH_AFTER",
+    "GROWTH_TOLERANCE",
     "LANDMARKS_TABLE_8_1",
     "NARROW_RELATIVE",
+    "SYNC_STEPS_PER_S",
     "TARGETS",
+    "TASK_REWARD",
     "U_X_LANDMARKS",
     "WINDOW_K",
     "ReferenceAction",
@@ -29,6 +35,29 @@ that was used in the Breve environment". Target: 4 ≤ k ≤ 8."""
 CHANGE_DBNS = 250
 """Change DBNs of a core agent, about 250 and bounded over 250,000 steps (Fig. 7.9).
 Target: ≤ 600 and no longer growing after 150,000 steps."""
+
+CHANGE_DBN_LIMIT = 600
+"""Target: at most this many change DBNs at the end of a 250,000-step core run."""
+
+GROWTH_AFTER = 150_000
+"""Target: the change DBNs no longer grow from this step on (Fig. 7.9: bounded, with drops
+when the hand's actions become reliable and when DBNs reach the age limit of 100,000 steps)."""
+
+GROWTH_TOLERANCE = 0.10
+""""Not growing": the least-squares line through the change-DBN counts of the checkpoints from
+:data:`GROWTH_AFTER` on rises, over those checkpoints, by at most this fraction of their mean
+count (``qlap_runtime.analysis.timeline.growth_verdict``)."""
+
+SYNC_STEPS_PER_S = 1500.0
+"""Target (a benchmark, not a test): the synchronous loop averages at least this many steps
+per second over a 250,000-step core run (summary.json's ``steps_per_s``)."""
+
+TASK_REWARD = MappingProxyType({"move_block": 6.0, "hit_floor": 6.0, "pickup": 2.0})
+"""Target: mean reward per trial at 250,000 steps, mean over 5 seeds, 100 trials each, core
+world (§7.2's reward: +9.99 on success, −0.01 a step)."""
+
+ABOVE_RANDOM = 2.0
+"""Target: each task's final mean reward at least this much above the random policy's."""
 
 LANDMARKS_TABLE_8_1 = MappingProxyType({
     "u_x": 3, "u_y": 3, "u_z": 2, "h_x": 4, "h_y": 3, "h_z": 3, "y_TB": 3, "y_BT": 2,

@@ -7,6 +7,10 @@ threshold (Table 8.1, §8.1.1) and rel(a) of three actions with whether each has
 8.2, 8.4, 8.5) of J. Mugan, *Autonomous Qualitative Learning of Distinctions and Actions in a
 Developing Agent*, PhD dissertation, UT Austin, 2010. The reference's values live in
 :mod:`.reference_values`.
+
+Beside the final figures: the knowledge over time of each run (change and magnitude DBNs,
+plans, landmarks at every checkpoint, :mod:`.timeline`) with the verdict "change DBNs ≤ 600 and
+not growing after 150k", and the run's speed (summary.json's ``steps_per_s``).
 """
 
 from __future__ import annotations
@@ -22,13 +26,23 @@ from typing import Any
 from ..telemetry import pretty
 from . import reference_values as ref
 from .runs import AnalysisError, load_knowledge, run_labels
+from .timeline import (
+    KnowledgePoint,
+    describe_verdict,
+    growth_verdict,
+    knowledge_timeline,
+    mean_series,
+    run_speed,
+)
 
 __all__ = [
     "format_report",
+    "format_timeline",
     "knowledge_figures",
     "main_report",
     "narrow_values",
     "reference_figures",
+    "report_data",
     "resolutions_of",
 ]
 
@@ -123,6 +137,12 @@ def reference_figures() -> dict[str, Any]:
         "landmarks_target": {"median": ref.TARGETS["landmarks_median"],
                              "max": ref.TARGETS["landmarks_max"]},
         "narrow_count": 0, "narrow_target": ref.TARGETS["narrow_count"],
+        "growth": {"limit": ref.CHANGE_DBN_LIMIT, "after": ref.GROWTH_AFTER,
+                   "tolerance": ref.GROWTH_TOLERANCE,
+                   "target": "change DBNs ≤ 600 at the end; the least-squares line through "
+                             "the counts from 150k on rises by ≤ 10 % of their mean"},
+        "steps_per_s": {"target": ref.SYNC_STEPS_PER_S,
+                        "what": "summary.json steps_per_s of the sync loop, mean over runs"},
         "u_x": {"landmarks": [list(r) for r in ref.U_X_LANDMARKS],
                 "band": list(ref.FRICTION_BAND), "target": ref.TARGETS["u_x_band"],
                 "source": "Table 8.1"},
@@ -265,22 +285,99 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
 
 
-def main_report(paths: Sequence[Path], as_json: bool = False) -> str:
-    """``qlap report``: the figures of each run (a run or checkpoint directory) as text or
-    JSON (``{"reference", "runs": {label: figures}, "mean"}``)."""
+def format_timeline(timelines: Mapping[str, Sequence[KnowledgePoint]],
+                    verdicts: Mapping[str, Mapping[str, Any]],
+                    mean_verdict: Mapping[str, Any] | None,
+                    speeds: Mapping[str, Mapping[str, Any] | None]) -> str:
+    """Knowledge over time (one row per checkpoint step, one column per run: change DBNs /
+    magnitude DBNs / plans / landmarks), the growth verdicts and the runs' speeds."""
+    labels = list(timelines)
+    many = len(labels) > 1
+    lines = ["knowledge over time (change DBNs / magnitude DBNs / plans / landmarks at each "
+             "checkpoint):"]
+    steps = sorted({p.step for pts in timelines.values() for p in pts})
+    if not steps:
+        lines.append("  no checkpoints")
+    else:
+        at = {label: {p.step: p for p in pts} for label, pts in timelines.items()}
+        mean = {p.step: p for p in mean_series(timelines)}
+        rows = []
+        for step in steps:
+            cells = []
+            for label in labels:
+                p = at[label].get(step)
+                cells.append("" if p is None else
+                             f"{p.change_dbns} / {p.magnitude_dbns} / {p.plans} / {p.landmarks}")
+            extra = []
+            if many:
+                m = mean[step]
+                extra = [f"{m.mean:.1f}" + ("" if math.isnan(m.stderr) else f" ± {m.stderr:.1f}")
+                         + ("" if m.n == len(labels) else f" ({m.n} of {len(labels)} runs)")]
+            rows.append([f"{step:,}", *cells, *extra])
+        lines.append(_table(["step", *labels] + (["mean change DBNs (± s.e.)"] if many else []),
+                            rows))
+    lines += ["", f"change DBNs ≤ {ref.CHANGE_DBN_LIMIT} and not growing after "
+                  f"{ref.GROWTH_AFTER:,} steps (least-squares rise over the checkpoints from "
+                  f"{ref.GROWTH_AFTER:,} on ≤ {ref.GROWTH_TOLERANCE:.0%} of their mean):"]
+    width = max(len(x) for x in [*labels, "mean"])
+    for label in labels:
+        lines.append(f"  {label:<{width}}  {describe_verdict(verdicts[label])}")
+    if many and mean_verdict is not None:
+        lines.append(f"  {'mean':<{width}}  {describe_verdict(mean_verdict)}")
+    lines += ["", f"speed (summary.json steps_per_s; target ≥ {ref.SYNC_STEPS_PER_S:,.0f} "
+                  "steps/s for the sync loop):"]
+    for label in labels:
+        sp = speeds.get(label)
+        lines.append(f"  {label:<{width}}  " + (
+            "no summary.json" if sp is None or sp["steps_per_s"] is None else
+            f"{sp['steps_per_s']:,.1f} steps/s ({sp['placement']})"))
+    values = [sp["steps_per_s"] for sp in speeds.values() if sp and sp["steps_per_s"]]
+    if many and values:
+        lines.append(f"  {'mean':<{width}}  {sum(values) / len(values):,.1f} steps/s "
+                     f"over {len(values)} run(s)")
+    return "\n".join(lines)
+
+
+def report_data(paths: Sequence[Path]) -> dict[str, Any]:
+    """Everything ``qlap report --json`` prints, as a dict: ``reference``, ``runs`` (each run's
+    final figures), ``mean``, ``timeline`` (each run's counts at every checkpoint),
+    ``growth`` (each run's verdict), ``growth_mean`` (the verdict on the mean across runs at
+    the checkpoint steps they all have), ``speed`` (each run's summary.json speed)."""
     paths = [Path(p) for p in paths]
     if not paths:
         raise AnalysisError("give at least one run directory")
     labels = run_labels(paths)
     figures = [knowledge_figures(load_knowledge(p), resolutions_of(p)) for p in paths]
-    if not as_json:
-        return format_report(figures, labels)
+    timelines = {label: knowledge_timeline(p) if (p / "checkpoints").is_dir() else []
+                 for label, p in zip(labels, paths, strict=True)}
+    growth = {label: growth_verdict([q.step for q in pts], [q.change_dbns for q in pts])
+              for label, pts in timelines.items()}
+    common = mean_series(timelines, common=True)
+    growth_mean = growth_verdict([q.step for q in common], [q.mean for q in common])
+    speeds = {label: run_speed(p) for label, p in zip(labels, paths, strict=True)}
     mean: dict[str, Any] = {key: _mean([f[key] for f in figures])
             for key in ("k", "change_dbns", "magnitude_dbns", "landmarks_median",
                         "landmarks_max", "narrow_count")}
     mean["actions"] = {key: {"rel": _mean([f["actions"][key]["rel"] for f in figures]),
                              "with_plan": sum(f["actions"][key]["plan"] for f in figures)}
                        for key in figures[0]["actions"]}
-    return json.dumps({"reference": reference_figures(),
-                       "runs": dict(zip(labels, figures, strict=True)), "mean": mean},
-                      indent=1, ensure_ascii=False)
+    mean["steps_per_s"] = _mean([sp["steps_per_s"] for sp in speeds.values() if sp])
+    return {"reference": reference_figures(),
+            "runs": dict(zip(labels, figures, strict=True)), "mean": mean,
+            "timeline": {label: [q.to_json() for q in pts] for label, pts in timelines.items()},
+            "growth": growth, "growth_mean": growth_mean, "speed": speeds}
+
+
+def main_report(paths: Sequence[Path], as_json: bool = False) -> str:
+    """``qlap report``: the figures of each run (a run or checkpoint directory) as text or
+    JSON (:func:`report_data`)."""
+    data = report_data(paths)
+    if as_json:
+        return json.dumps(data, indent=1, ensure_ascii=False)
+    labels = list(data["runs"])
+    timelines = {label: [KnowledgePoint(**q) for q in pts]
+                 for label, pts in data["timeline"].items()}
+    return "\n\n".join([
+        format_report([data["runs"][label] for label in labels], labels),
+        format_timeline(timelines, data["growth"],
+                        data["growth_mean"] if len(labels) > 1 else None, data["speed"])])

@@ -17,9 +17,15 @@ from qlap_runtime.analysis.curve import (
     evaluate_job,
     main_curve,
     read_rows,
+    select_every,
     write_rows,
 )
-from qlap_runtime.analysis.runs import checkpoint_step, find_checkpoints, run_world
+from qlap_runtime.analysis.runs import (
+    Checkpoint,
+    checkpoint_step,
+    find_checkpoints,
+    run_world,
+)
 
 from .conftest import tiny_run
 
@@ -147,3 +153,41 @@ def test_a_broken_checkpoint_fails_alone(runs, tmp_path):
     assert main_curve([s1], "move_block", trials=2, jobs=2, echo=lines.append) == 1
     assert any("step-0002000" in x and "FAILED" in x for x in lines)
     assert [r.step for r in read_rows(s1 / "curve.csv")] == [None, 1000, 3000]
+
+
+def test_select_every_by_hand(tmp_path):
+    def ck(run: str, step: int, name: str | None = None) -> Checkpoint:
+        return Checkpoint(run, tmp_path, step, name or f"step-{step:07d}")
+
+    cks = [ck("a", s) for s in range(10_000, 250_001, 10_000)] + [
+        ck("b", 10_000), ck("b", 20_000), ck("b", 25_000, "final")]
+    assert select_every(cks, None) == cks
+    got = select_every(cks, 50_000)
+    assert [(c.run, c.step) for c in got] == [
+        ("a", 50_000), ("a", 100_000), ("a", 150_000), ("a", 200_000), ("a", 250_000),
+        ("b", 25_000)]                                   # b's last, though no multiple
+    assert [c.step for c in select_every(cks, 10_000) if c.run == "a"] == list(
+        range(10_000, 250_001, 10_000))                  # the reference's schedule: all
+    with pytest.raises(AnalysisError, match="positive"):
+        select_every(cks, 0)
+
+
+def test_curve_every(runs, tmp_path):
+    s1 = shutil.copytree(runs[0], tmp_path / "s1")
+    lines: list[str] = []
+    assert main_curve([s1], "move_block", trials=2, jobs=2, echo=lines.append,
+                      every=2000) == 0
+    assert "2 of 3 checkpoints (steps multiple of 2,000, and each run's last)" in lines[0]
+    assert [(r.step, r.checkpoint) for r in read_rows(s1 / "curve.csv")] == [
+        (None, ""), (2000, "step-0002000"), (3000, "step-0003000")]
+    lines.clear()                                        # all of them: only 1000 is new
+    assert main_curve([s1], "move_block", trials=2, jobs=2, echo=lines.append) == 0
+    assert "3 of 4 evaluations" in lines[0]
+    assert [r.step for r in read_rows(s1 / "curve.csv")] == [None, 1000, 2000, 3000]
+
+
+def test_cli_every_must_be_positive(runs):
+    r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "curve", str(runs[0]),
+                        "--task", "move_block", "--every", "0"], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2 and "--every" in r.stderr and "positive" in r.stderr

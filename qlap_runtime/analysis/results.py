@@ -1,0 +1,630 @@
+"""The results page (``docs/results.md``): seeds run, curves, knowledge, DBN growth, speed.
+
+``scripts/learning_results.py`` is the command; this module does the work so that its pieces
+can be tested. It runs the missing seeds (``qlap run --headless --placement sync``, resumable),
+evaluates the curves of every task over all seeds (:func:`.curve.main_curve`), reads the
+knowledge (:func:`.report.report_data`) and writes a Markdown page with its images, judged
+against the targets of :mod:`.reference_values`. The reference is J. Mugan, *Autonomous
+Qualitative Learning of Distinctions and Actions in a Developing Agent*, PhD dissertation, UT
+Austin, 2010.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import re
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..qlap.checkpoint import atomic_write_bytes
+from ..telemetry import pretty
+from . import reference_values as ref
+from .curve import (
+    RANDOM_RUN,
+    CurvePoint,
+    CurveRow,
+    aggregate,
+    main_curve,
+    read_rows,
+    select_every,
+)
+from .report import report_data
+from .runs import AnalysisError, find_checkpoints, run_labels, run_world
+from .timeline import KnowledgePoint, describe_verdict, mean_series, plot_dbn_counts
+
+__all__ = [
+    "ResultsConfig",
+    "TaskResult",
+    "build_results",
+    "render_page",
+    "run_command",
+    "run_dir_name",
+    "run_seeds",
+    "task_result",
+    "world_tasks",
+]
+
+PROTOCOL: dict[str, Any] = {"world": "core", "steps": 250_000, "seeds": 5, "trials": 100}
+"""The protocol the targets are set for: core, 250,000 steps, 5 seeds, the sync loop, 100
+trials per checkpoint."""
+
+Echo = Callable[[str], None]
+
+
+@dataclass
+class ResultsConfig:
+    """The options of ``scripts/learning_results.py``."""
+
+    world: str = "core"
+    seeds: list[int] = field(default_factory=lambda: [1, 2, 3, 4, 5])
+    steps: int = 250_000
+    trials: int = 100
+    every: int | None = 10_000
+    jobs: int = 2
+    runs_dir: Path = Path("runs/results")
+    out: Path = Path("docs")
+    tasks: list[str] | None = None
+    eval_seed: int = 0
+    """Seed of the evaluation trials (``qlap curve --seed``)."""
+    argv: list[str] = field(default_factory=list)
+    """The command as typed, for the page."""
+
+
+def run_dir_name(world: str, seed: int) -> str:
+    """``W-sS``, the world spec made safe for a directory name (``core:floating`` →
+    ``core_floating``)."""
+    return f"{re.sub(r'[^A-Za-z0-9._-]', '_', world)}-s{seed}"
+
+
+def run_command(world: str, steps: int, seed: int, out: Path) -> list[str]:
+    """The ``qlap run`` command of one seed (without the interpreter)."""
+    return ["qlap", "run", "--headless", "--placement", "sync", "--world", world,
+            "--steps", str(steps), "--seed", str(seed), "--out", str(out), "--quiet"]
+
+
+def world_tasks(world: str) -> list[str]:
+    """The tasks of a world spec, in the world's order."""
+    import worlds
+
+    try:
+        w = worlds.make(world)
+    except (ValueError, ImportError, AttributeError, TypeError) as exc:
+        raise AnalysisError(f"world {world!r}: {exc}") from None
+    try:
+        return list(w.tasks)
+    finally:
+        w.close()
+
+
+def _summary(run_dir: Path) -> dict[str, Any] | None:
+    try:
+        data = json.loads((run_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs: int,
+              echo: Echo = print, python: str = sys.executable) -> list[Path]:
+    """Run every seed whose ``RUNS/W-sS/summary.json`` is missing, ``jobs`` at a time, each as
+    ``qlap run --headless --placement sync … --quiet`` in its own process (its output in
+    ``RUNS/W-sS.log``). Prints a line per finished run. Returns the run directories of all
+    seeds; raises :class:`AnalysisError` when a run failed (the others are finished first)."""
+    runs_dir = Path(runs_dir)
+    dirs = {s: runs_dir / run_dir_name(world, s) for s in seeds}
+    todo = [s for s in seeds if _summary(dirs[s]) is None]
+    echo(f"runs: {len(seeds) - len(todo)} of {len(seeds)} already done in {runs_dir}"
+         + (f"; {len(todo)} to run, {min(jobs, len(todo))} at a time" if todo else ""))
+    if not todo:
+        return [dirs[s] for s in seeds]
+    runs_dir.mkdir(parents=True, exist_ok=True)
+
+    def one(seed: int) -> tuple[int, float]:
+        cmd = run_command(world, steps, seed, dirs[seed])
+        log = runs_dir / f"{dirs[seed].name}.log"
+        t0 = time.perf_counter()
+        with open(log, "w") as f:
+            f.write(shlex.join(cmd) + "\n")
+            f.flush()
+            rc = subprocess.run([python, "-m", "qlap_runtime.cli", *cmd[1:]], stdout=f,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
+        return rc, time.perf_counter() - t0
+
+    failed = []
+    with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(todo)))) as pool:
+        futures = {pool.submit(one, s): s for s in todo}
+        for i, fut in enumerate(as_completed(futures), 1):
+            seed = futures[fut]
+            name = dirs[seed].name
+            rc, seconds = fut.result()
+            summary = _summary(dirs[seed])
+            if rc != 0 or summary is None:
+                failed.append(seed)
+                echo(f"[{i}/{len(todo)}] {name}: FAILED (exit {rc}) after {seconds:.0f} s; "
+                     f"see {runs_dir / (name + '.log')}")
+                continue
+            echo(f"[{i}/{len(todo)}] {name}: {summary.get('steps', steps):,} steps in "
+                 f"{seconds:.0f} s ({summary.get('steps_per_s')} steps/s in the loop), "
+                 f"k = {summary.get('k')}, {summary.get('dbns')} DBNs, "
+                 f"{summary.get('plans')} plans, {summary.get('landmarks')} landmarks")
+    if failed:
+        raise AnalysisError(f"the runs of seed(s) {', '.join(map(str, failed))} failed")
+    return [dirs[s] for s in seeds]
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    """One task's curve over the seeds, and what the page says of it."""
+
+    task: str
+    world: str
+    points: list[CurvePoint]
+    """The mean across seeds at every evaluated step."""
+    baseline: CurveRow | None
+    """The random policy on the same world, task, trials and trial seed."""
+    labels: list[str]
+    """The runs (seeds)."""
+    trials: int
+
+
+def task_result(run_dirs: Sequence[Path], task: str, curve_dir: Path, trials: int,
+                every: int | None, eval_seed: int = 0) -> TaskResult:
+    """The curve of ``task`` over ``run_dirs`` as ``qlap curve … --out curve_dir`` left it in
+    ``curve.csv``: the checkpoints ``--every`` selects, their mean and standard error across
+    runs (:func:`.curve.aggregate`), and the random policy's row."""
+    labels = run_labels(list(run_dirs))
+    checkpoints = [c for d, label in zip(run_dirs, labels, strict=True)
+                   for c in find_checkpoints(d, label)]
+    world = run_world(run_dirs[0], find_checkpoints(run_dirs[0], labels[0]), None)
+    wanted = {(c.run, c.step) for c in select_every(checkpoints, every)}
+    rows = [r for r in read_rows(Path(curve_dir) / "curve.csv")
+            if (r.task, r.world, r.trials, r.seed) == (task, world, trials, eval_seed)]
+    ours = [r for r in rows if r.policy == "qlap" and (r.run, r.step) in wanted]
+    baseline = next((r for r in rows if r.policy == "random" and r.run == RANDOM_RUN), None)
+    return TaskResult(task, world, aggregate(ours, len(labels)), baseline, labels, trials)
+
+
+# ---------------------------------------------------------------------------------------------
+# Judging
+# ---------------------------------------------------------------------------------------------
+def _mark(ok: bool | None) -> str:
+    return {True: "✅ pass", False: "❌ fail", None: "— n/a"}[ok]
+
+
+def _world_base(world: str) -> str:
+    return world.split(":", 1)[0]
+
+
+def task_targets(res: TaskResult) -> list[tuple[str, str, bool | None]]:
+    """(target, measured, met) of one task: the final reward (core tasks only), the margin
+    over the random policy, the last three checkpoints above the 20,000-step one."""
+    pts = res.points
+    end = pts[-1] if pts else None
+    out: list[tuple[str, str, bool | None]] = []
+    goal = ref.TASK_REWARD.get(res.task) if _world_base(res.world) == "core" else None
+    if goal is not None:
+        out.append((f"mean reward at the end ≥ {goal:g}",
+                    "—" if end is None else f"{end.mean_reward:.2f}",
+                    None if end is None else end.mean_reward >= goal))
+    base = res.baseline
+    if end is not None and base is not None:
+        margin = end.mean_reward - base.mean_reward
+        out.append((f"at least {ref.ABOVE_RANDOM:g} above the random policy",
+                    f"{margin:+.2f} ({end.mean_reward:.2f} against {base.mean_reward:.2f})",
+                    margin >= ref.ABOVE_RANDOM))
+    else:
+        out.append((f"at least {ref.ABOVE_RANDOM:g} above the random policy", "—", None))
+    at20 = next((p for p in pts if p.step == 20_000), None)
+    last3 = pts[-3:]
+    if at20 is None or len(last3) < 3 or any(p.step <= at20.step for p in last3):
+        out.append(("each of the last three checkpoints above the 20k one",
+                    "no 20k checkpoint, or fewer than three after it", None))
+    else:
+        out.append(("each of the last three checkpoints above the 20k one",
+                    ", ".join(f"{p.mean_reward:.2f}" for p in last3)
+                    + f" against {at20.mean_reward:.2f}",
+                    all(p.mean_reward > at20.mean_reward for p in last3)))
+    return out
+
+
+def _pm(mean: float | None, se: float | None, fmt: str = "{:.2f}") -> str:
+    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
+        return "—"
+    text = fmt.format(mean)
+    if se is not None and not math.isnan(se):
+        text += " ± " + fmt.format(se)
+    return text
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    def line(cells: Sequence[str]) -> str:
+        return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+
+    return "\n".join([line(header), line(["---"] * len(header)), *map(line, rows)])
+
+
+def _task_section(res: TaskResult, image: str | None) -> list[str]:
+    pts = res.points
+    lines = [f"### {res.task}", ""]
+    if not pts:
+        return [*lines, "No evaluation in curve.csv.", ""]
+    chosen: list[tuple[str, CurvePoint]] = []
+    at20 = next((p for p in pts if p.step == 20_000), None)
+    if at20 is not None:
+        chosen.append(("20k (end of babbling)", at20))
+    for p in pts[-3:]:
+        if p is not at20:
+            chosen.append((f"{p.step:,}" + (" (end)" if p is pts[-1] else ""), p))
+    header = ["checkpoint", "mean reward ± s.e. across seeds", "success rate", "seeds",
+              *res.labels]
+    rows = []
+    for name, p in chosen:
+        rows.append([name, _pm(p.mean_reward, p.stderr), f"{p.success_rate:.0%}",
+                     str(len(p.runs)),
+                     *(f"{p.runs[r]:.2f}" if r in p.runs else "—" for r in res.labels)])
+    b = res.baseline
+    if b is not None:
+        rows.append(["random policy", f"{b.mean_reward:.2f} ± {b.stderr:.2f} (over trials)",
+                     f"{b.success_rate:.0%}", "—", *("" for _ in res.labels)])
+    lines += [_table(header, rows), ""]
+    lines += [_table(["target", "measured", "met"],
+                     [[t, m, _mark(ok)] for t, m, ok in task_targets(res)]), ""]
+    if image:
+        lines += [f"![{res.task}: mean reward against steps]({image})", ""]
+    return lines
+
+
+def _knowledge_rows(data: Mapping[str, Any]) -> list[list[str]]:
+    """The knowledge table: measure, reference, target, each seed, mean, seeds meeting it,
+    mark (the mean against the target; "with a plan" asks every seed for one)."""
+    runs = data["runs"]
+    labels = list(runs)
+    R = data["reference"]
+    growth = data["growth"]
+    n = len(labels)
+    rows: list[list[str]] = []
+
+    def add(measure: str, reference: str, target: str, cells: list[str], mean: str,
+            per_run: list[bool | None], met: bool | None) -> None:
+        judged = [x for x in per_run if x is not None]
+        rows.append([measure, reference, target, *cells, mean,
+                     f"{sum(judged)}/{n}" if judged else "—", _mark(met)])
+
+    def mean_of(xs: Sequence[float | None]) -> float | None:
+        ys = [float(x) for x in xs if x is not None]
+        return sum(ys) / len(ys) if ys else None
+
+    ks = [runs[r]["k"] for r in labels]
+    mk = mean_of(ks)
+    add("window k (App. C)", f"≈ {R['k']['value']} (§7.10.1)", "4 to 8",
+        [str(k) for k in ks], _pm(mk, None, "{:.1f}"),
+        [None if k is None else 4 <= k <= 8 for k in ks],
+        None if mk is None else 4 <= mk <= 8)
+    ch = [runs[r]["change_dbns"] for r in labels]
+    mch = mean_of(ch)
+    add("change DBNs at the end (Fig. 7.9)", f"≈ {ref.CHANGE_DBNS}",
+        f"≤ {ref.CHANGE_DBN_LIMIT}", [str(c) for c in ch], _pm(mch, None, "{:.1f}"),
+        [c <= ref.CHANGE_DBN_LIMIT for c in ch],
+        None if mch is None else mch <= ref.CHANGE_DBN_LIMIT)
+    gm = data["growth_mean"]
+    add(f"change DBNs not growing after {ref.GROWTH_AFTER // 1000}k", "bounded (Fig. 7.9)",
+        f"fitted rise ≤ {ref.GROWTH_TOLERANCE:.0%} of the mean",
+        [_growth_cell(growth[r]) for r in labels], _growth_cell(gm),
+        [growth[r]["flat"] for r in labels], gm["flat"])
+    mag = [runs[r]["magnitude_dbns"] for r in labels]
+    add("magnitude DBNs at the end", "—", "—", [str(m) for m in mag],
+        _pm(mean_of(mag), None, "{:.1f}"), [None] * n, None)
+    med = [runs[r]["landmarks_median"] for r in labels]
+    mmed = mean_of(med)
+    add("landmarks per variable, median", f"{R['landmarks_median']:g} (Table 8.1)", "≤ 4",
+        ["—" if m is None else f"{m:g}" for m in med], _pm(mmed, None, "{:.1f}"),
+        [None if m is None else m <= 4 for m in med], None if mmed is None else mmed <= 4)
+    top = [runs[r]["landmarks_max"] for r in labels]
+    mtop = mean_of(top)
+    add("landmarks per variable, max", f"{R['landmarks_max']} (Table 8.1)", "≤ 9",
+        ["—" if t is None else f"{t} ({pretty(runs[r]['landmarks_max_variable'])})"
+         for t, r in zip(top, labels, strict=True)], _pm(mtop, None, "{:.1f}"),
+        [None if t is None else t <= 9 for t in top], None if mtop is None else mtop <= 9)
+    nar = [runs[r]["narrow_count"] for r in labels]
+    mnar = mean_of(nar)
+    add("values narrower than the resolution", "none", "0", [str(x) for x in nar],
+        _pm(mnar, None, "{:.1f}"), [x == 0 for x in nar], None if mnar is None else mnar == 0)
+    lo, hi = ref.FRICTION_BAND
+    (m0, m1), (p0, p1) = ref.U_X_LANDMARKS
+    for side, band, reference in (("plus", f"[{lo:g}, {hi:g}]", f"[{p0}, {p1}]"),
+                                  ("minus", f"[−{hi:g}, −{lo:g}]", f"[{m0}, {m1}]")):
+        ux = [runs[r]["u_x"] for r in labels]
+        ok = [None if u is None else len(u[side]) == 1 for u in ux]
+        add(f"u_x landmarks centred in {band}", f"{reference} (Table 8.1)", "exactly one",
+            ["n/a" if u is None else (", ".join(u[side]) or "none") for u in ux],
+            f"{sum(1 for x in ok if x)}/{n} with one", ok,
+            None if all(x is None for x in ok) else all(bool(x) for x in ok))
+    for ra in ref.ACTIONS:
+        key = f"a({ra.variable}, {ra.value})"
+        need_plan = ra.variable == "h_x.dot"
+        acts = [runs[r]["actions"][key] for r in labels]
+        mrel = mean_of([a["rel"] for a in acts])
+        # an action the agent never called nor planned for does not meet the target
+        per = [a["rel"] is not None and a["rel"] >= ra.target and (a["plan"] or not need_plan)
+               for a in acts]
+        met = (mrel is not None and all(a["rel"] is not None for a in acts)
+               and mrel >= ra.target and (not need_plan or all(a["plan"] for a in acts)))
+        add(f"rel {pretty(key)} ({ra.source})", f"{ra.rel:.2f}",
+            f"≥ {ra.target:.2f}" + (" with a plan" if need_plan else ""),
+            ["no such action" if a["rel"] is None else
+             f"{a['rel']:.2f}" + (" (plan)" if a["plan"] else " (no plan)") for a in acts],
+            _pm(mrel, None) + f", plan {sum(a['plan'] for a in acts)}/{n}", per, met)
+    return rows
+
+
+def _growth_cell(v: Mapping[str, Any]) -> str:
+    if v.get("rise") is None:
+        return "n/a (too short)"
+    return f"{v['rise']:+.1f} of {v['allowed']:.1f} allowed"
+
+
+def _speed_rows(data: Mapping[str, Any]) -> tuple[list[list[str]], float | None]:
+    rows = []
+    values = []
+    for label, sp in data["speed"].items():
+        if sp is None or sp.get("steps_per_s") is None:
+            rows.append([label, "—", "—", "no summary.json"])
+            continue
+        values.append(float(sp["steps_per_s"]))
+        rows.append([label, f"{sp['steps_per_s']:,.1f}",
+                     "—" if sp.get("wall_time_s") is None else f"{sp['wall_time_s']:,.0f}",
+                     str(sp.get("placement", "sync"))])
+    mean = sum(values) / len(values) if values else None
+    return rows, mean
+
+
+def _publish(path: Path, data: bytes) -> None:
+    """Write a page or image atomically, readable by all as a document should be (the
+    temporary file behind an atomic write is private)."""
+    atomic_write_bytes(path, data)
+    os.chmod(path, 0o644)
+
+
+def _git_commit(cwd: Path) -> str:
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=cwd,
+                              capture_output=True, text=True, timeout=10)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=cwd, capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    if head.returncode != 0:
+        return "unknown"
+    return head.stdout.strip() + (" with uncommitted changes" if dirty.stdout.strip() else "")
+
+
+def _shown(path: Path) -> str:
+    """A path as the page shows it: relative to the working directory when it is below it."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[str, Any],
+                images: Mapping[str, str], run_dirs: Sequence[Path], *,
+                date: str | None = None, cores: int | None = None,
+                commit: str | None = None) -> str:
+    """The Markdown of the results page. ``images``: task name (and ``"dbn"``) → the image's
+    path relative to the page."""
+    date = date or _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    cores = cores if cores is not None else os.cpu_count()
+    commit = commit or _git_commit(Path.cwd())
+    labels = list(data["runs"])
+    n = len(labels)
+    typed = shlex.join(cfg.argv) if cfg.argv else "scripts/learning_results.py"
+    full = shlex.join([
+        "scripts/learning_results.py", "--world", cfg.world, "--seeds",
+        *map(str, cfg.seeds), "--steps", str(cfg.steps), "--trials", str(cfg.trials),
+        "--every", str(cfg.every or 0), "--jobs", str(cfg.jobs), "--runs-dir",
+        _shown(cfg.runs_dir), "--out", _shown(cfg.out), "--tasks",
+        *[t.task for t in tasks]])
+    protocol_ok = (_world_base(cfg.world) == PROTOCOL["world"] and cfg.steps == PROTOCOL["steps"]
+                   and len(cfg.seeds) >= PROTOCOL["seeds"] and cfg.trials == PROTOCOL["trials"])
+    L: list[str] = [
+        "# Learning results",
+        "",
+        "What a QLAP agent learns in the synchronous loop, over several seeds: the task "
+        "curves of §7.2, the knowledge of chapter 8 and the DBN count of Fig. 7.9 of J. Mugan, "
+        "*Autonomous Qualitative Learning of Distinctions and Actions in a Developing Agent*, "
+        "PhD dissertation, UT Austin, 2010, each beside the reference's figures and the targets "
+        "this project set itself. Generated by `scripts/learning_results.py`; do not edit by "
+        "hand.",
+        "",
+        f"- Generated {date} on a machine with {cores} cores (Python "
+        f"{platform.python_version()}, {platform.system()}), commit {commit}.",
+        f"- World `{cfg.world}`, seeds {', '.join(map(str, cfg.seeds))}, {cfg.steps:,} steps "
+        f"each, `--jobs {cfg.jobs}` runs and evaluations at a time; checkpoints evaluated "
+        + ("all" if not cfg.every else f"every {cfg.every:,} steps and the last")
+        + f", {cfg.trials} trials each (trial seed {cfg.eval_seed}, the same set-ups for every "
+        "checkpoint), learning off, as `qlap eval`.",
+        "",
+        "The command (as typed, then with every option spelled out):",
+        "",
+        "```sh",
+        typed,
+        full,
+        "```",
+        "",
+        "Each seed was run as",
+        "",
+        "```sh",
+        shlex.join(run_command(cfg.world, cfg.steps, cfg.seeds[0],
+                               Path(_shown(cfg.runs_dir)) / run_dir_name(cfg.world,
+                                                                         cfg.seeds[0]))),
+        "```",
+        "",
+        "then `qlap curve RUN_DIRS --task T --trials N --every E --out RUNS/curve-T` and "
+        "`qlap report --json RUN_DIRS` (docs/analysis.md).",
+        "",
+    ]
+    if not protocol_ok:
+        L += [f"> **Not the targets' protocol.** The targets below are set for the core world, "
+              f"{PROTOCOL['steps']:,} steps, at least {PROTOCOL['seeds']} seeds and "
+              f"{PROTOCOL['trials']} trials a checkpoint; this page ran {cfg.world}, "
+              f"{cfg.steps:,} steps, {len(cfg.seeds)} seed(s), {cfg.trials} trials. The marks "
+              "are indicative only.", ""]
+
+    krows = _knowledge_rows(data)
+    srows, smean = _speed_rows(data)
+    glance = [[t.task, target, measured, _mark(ok)]
+              for t in tasks for target, measured, ok in task_targets(t)]
+    glance += [["knowledge", f"{r[0]}: {r[2]}", r[-3], r[-1]] for r in krows if r[2] != "—"]
+    glance.append(["speed", f"sync loop ≥ {ref.SYNC_STEPS_PER_S:,.0f} steps/s (mean)",
+                   "—" if smean is None else f"{smean:,.1f}",
+                   _mark(None if smean is None else smean >= ref.SYNC_STEPS_PER_S)])
+    met = sum(row[-1] == _mark(True) for row in glance)
+    judged = sum(row[-1] != _mark(None) for row in glance)
+    L += ["## Targets at a glance", "",
+          f"{met} of {judged} judged targets met (means over the seeds; details below).", "",
+          _table(["what", "target", "measured", "met"], glance), ""]
+
+    L += ["## Tasks", "",
+          "Mean reward per trial (+9.99 on success, −0.01 a step, at most 300 steps; §7.2) "
+          "at the end of babbling (20k), at the last three evaluated checkpoints and at the "
+          "end, as the mean over the seeds ± its standard error across seeds (§7.3: \"all "
+          "error bars are standard error\"); the success rate is the mean over the seeds. The "
+          "random policy is evaluated once on the same world, task, trials and trial seed.",
+          "",
+          "Targets (for the core world at 250,000 steps): the final mean reward at least 6 on "
+          "move_block and hit_floor and at least 2 on pickup; on every task at least 2 above "
+          "the random policy; and a curve that rises: each of its last three checkpoints above "
+          "its 20k value.", ""]
+    for t in tasks:
+        L += _task_section(t, images.get(t.task))
+
+    L += ["## Knowledge at the end", "",
+          "From each seed's `knowledge.json`, beside the reference's figures (Tables 8.1–8.5, "
+          "Fig. 7.9, App. C). *Seeds* counts the seeds meeting the target; the mark judges "
+          "the mean over the seeds (and, where a plan is asked for, every seed having one). "
+          "Landmarks are counted per motor and magnitude variable, the initial ones included "
+          "as in Table 8.1; a value is narrower than the resolution when a landmark range or "
+          "the open interval between two consecutive landmarks is narrower than the "
+          "variable's resolution.", "",
+          _table(["measure", "reference", "target", *labels, "mean", "seeds", "met"],
+                 krows), ""]
+
+    L += ["## DBNs over time", "",
+          f"Change DBNs at every checkpoint of each seed (grey) and their mean ± s.e. across "
+          f"seeds, as Fig. 7.9 (where the reference's count stays about {ref.CHANGE_DBNS}, "
+          "dropping when the hand's actions become reliable and again when DBNs that became "
+          "no plan are deleted at age 100,000).", ""]
+    if images.get("dbn"):
+        L += [f"![change DBNs against steps]({images['dbn']})", ""]
+    timelines = {label: [KnowledgePoint(**q) for q in pts]
+                 for label, pts in data["timeline"].items()}
+    series = {f: {p.step: p for p in mean_series(timelines, f)}
+              for f in ("change_dbns", "magnitude_dbns", "plans", "landmarks")}
+    steps = sorted(series["change_dbns"])
+    if steps:
+        shown = [s for s in steps if s == 20_000 or s % 50_000 == 0 or s == steps[-1]]
+        rows = [[f"{s:,}", str(series['change_dbns'][s].n),
+                 *(_pm(series[f][s].mean, series[f][s].stderr, "{:.1f}")
+                   for f in ("change_dbns", "magnitude_dbns", "plans", "landmarks"))]
+                for s in shown]
+        L += [_table(["step", "seeds", "change DBNs", "magnitude DBNs", "plans", "landmarks"],
+                     rows), ""]
+    L += [f"Verdict, **change DBNs ≤ {ref.CHANGE_DBN_LIMIT} and not growing after "
+          f"{ref.GROWTH_AFTER:,} steps**: bounded means at most {ref.CHANGE_DBN_LIMIT} change "
+          "DBNs at the last checkpoint; not growing means that the least-squares line through "
+          f"the counts of the checkpoints from step {ref.GROWTH_AFTER:,} on rises, from the "
+          f"first of them to the last, by at most {ref.GROWTH_TOLERANCE:.0%} of their mean "
+          "count (a fitted line, so that one checkpoint just before or after a wave of "
+          "deletions does not decide alone). The mean is judged on the steps every seed has.",
+          ""]
+    L += [_table(["run", "verdict"],
+                 [[label, describe_verdict(data["growth"][label])] for label in labels]
+                 + ([["mean", describe_verdict(data["growth_mean"])]] if n > 1 else [])), ""]
+
+    L += ["## Speed of the synchronous loop", "",
+          f"Agent steps per second of each run's loop (`summary.json` `steps_per_s`), "
+          f"{cfg.jobs} run(s) at a time on {cores} cores. Target: a mean of at least "
+          f"{ref.SYNC_STEPS_PER_S:,.0f} steps/s over a 250,000-step core run (a benchmark, "
+          "not a test).", "",
+          _table(["run", "steps/s", "wall time (s)", "placement"],
+                 [*srows, ["mean", "—" if smean is None else f"{smean:,.1f}", "", ""]]),
+          "",
+          f"Mean {'—' if smean is None else f'{smean:,.1f}'} steps/s: "
+          + _mark(None if smean is None else smean >= ref.SYNC_STEPS_PER_S)
+          + f" (target ≥ {ref.SYNC_STEPS_PER_S:,.0f}).", ""]
+    L += ["## Files", "",
+          f"Runs: `{_shown(cfg.runs_dir)}/` ({', '.join(Path(d).name for d in run_dirs)}); "
+          f"curves: `{_shown(cfg.runs_dir)}/curve-TASK/curve.csv` (docs/analysis.md); the "
+          f"knowledge figures: `{_shown(cfg.runs_dir)}/report.json` (`qlap report --json`).",
+          ""]
+    return "\n".join(L)
+
+
+def build_results(cfg: ResultsConfig, echo: Echo = print) -> int:
+    """Run the missing seeds, the curves, the report; write ``OUT/results.md`` and
+    ``OUT/results/*.png``. Returns 0, or 1 when an evaluation failed (the page is written
+    with what there is). Raises :class:`AnalysisError` for unusable options or failed runs."""
+    tasks = cfg.tasks or world_tasks(cfg.world)
+    known = world_tasks(cfg.world)
+    unknown = [t for t in tasks if t not in known]
+    if unknown:
+        raise AnalysisError(f"{cfg.world} has no task {', '.join(map(repr, unknown))}; "
+                            f"tasks: {known}")
+    if not cfg.seeds:
+        raise AnalysisError("give at least one seed")
+    if len(set(cfg.seeds)) != len(cfg.seeds):
+        raise AnalysisError("a seed is given twice")
+    t0 = time.perf_counter()
+    run_dirs = run_seeds(cfg.world, cfg.seeds, cfg.steps, cfg.runs_dir, cfg.jobs, echo)
+
+    failures = 0
+    results = []
+    for task in tasks:
+        curve_dir = Path(cfg.runs_dir) / f"curve-{task}"
+        echo(f"\ncurve of {task} over {len(run_dirs)} seed(s) -> {curve_dir}")
+        failures += main_curve(run_dirs, task, cfg.trials, cfg.jobs, cfg.eval_seed, curve_dir,
+                               cfg.world, echo=echo, every=cfg.every or None)
+        results.append(task_result(run_dirs, task, curve_dir, cfg.trials, cfg.every or None,
+                                   cfg.eval_seed))
+
+    echo("\nknowledge (qlap report --json)")
+    data = report_data(run_dirs)
+    atomic_write_bytes(Path(cfg.runs_dir) / "report.json",
+                       json.dumps(data, indent=1, ensure_ascii=False).encode())
+
+    out = Path(cfg.out)
+    img_dir = out / "results"
+    images: dict[str, str] = {}
+    for res in results:
+        src = Path(cfg.runs_dir) / f"curve-{res.task}" / "curve.png"
+        if src.is_file():
+            name = f"curve-{res.task}.png"
+            _publish(img_dir / name, src.read_bytes())
+            images[res.task] = f"results/{name}"
+    timelines = {label: [KnowledgePoint(**q) for q in pts]
+                 for label, pts in data["timeline"].items()}
+    try:
+        plot_dbn_counts(timelines, img_dir / "dbn-count.png",
+                        f"change DBNs on {cfg.world}: {len(timelines)} seed(s)")
+        os.chmod(img_dir / "dbn-count.png", 0o644)
+        images["dbn"] = "results/dbn-count.png"
+    except ImportError:
+        echo("matplotlib is missing (pip install -e .[experiments]): no DBN figure")
+    page = render_page(cfg, results, data, images, run_dirs)
+    _publish(out / "results.md", page.encode())
+    echo(f"\nwrote {out / 'results.md'} and {len(images)} image(s) in {img_dir} "
+         f"({time.perf_counter() - t0:.0f} s)")
+    if failures:
+        echo(f"{failures} curve(s) had failed evaluations: see the lines marked FAILED")
+    return 1 if failures else 0

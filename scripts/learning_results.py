@@ -1,0 +1,84 @@
+#!/usr/bin/env python3
+"""Regenerate the results page (docs/results.md and docs/results/*.png) in one command.
+
+    .venv/bin/python scripts/learning_results.py            # core, 5 seeds x 250,000 steps
+
+(a) runs every seed that has no RUNS/W-sS/summary.json yet, as
+    ``qlap run --headless --placement sync --world W --steps N --seed S --out RUNS/W-sS --quiet``,
+    --jobs at a time (resumable: finished seeds are skipped); (b) evaluates each task's curve
+over all seeds (``qlap curve … --every E --out RUNS/curve-TASK``, itself resumable); (c) reads
+the knowledge (``qlap report --json``, saved as RUNS/report.json); (d) draws the change DBNs
+over time (Fig. 7.9); (e) writes OUT/results.md atomically. The work is done by
+qlap_runtime/analysis/results.py; docs/analysis.md describes the page.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _non_negative(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer ≥ 0, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="learning_results.py",
+        description="Run the seeds that are missing, evaluate the learning curves of every "
+                    "task over all seeds, read the knowledge, and write the results page "
+                    "(OUT/results.md with OUT/results/*.png). Resumable: finished runs and "
+                    "evaluations are reused.")
+    p.add_argument("--world", default="core", help="world spec of the runs (default: core)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5], metavar="S",
+                   help="seeds, one run each (default: 1 2 3 4 5)")
+    p.add_argument("--steps", type=_positive, default=250_000,
+                   help="agent steps of each run (default: 250000)")
+    p.add_argument("--trials", type=_positive, default=100,
+                   help="evaluation trials per checkpoint and task, §7.2 (default: 100)")
+    p.add_argument("--every", type=_non_negative, default=10_000, metavar="N",
+                   help="evaluate the checkpoints whose step is a multiple of N, and each "
+                        "run's last; 0: every checkpoint (default: 10000, the reference's "
+                        "schedule)")
+    p.add_argument("--jobs", type=_positive, default=2,
+                   help="runs at a time, and worker processes of each curve (default: 2)")
+    p.add_argument("--runs-dir", type=Path, default=Path("runs/results"),
+                   help="where the runs (W-sS/), their logs, the curves (curve-TASK/) and "
+                        "report.json go (default: runs/results)")
+    p.add_argument("--out", type=Path, default=Path("docs"),
+                   help="where results.md and results/*.png go (default: docs)")
+    p.add_argument("--tasks", nargs="+", default=None, metavar="TASK",
+                   help="tasks to evaluate (default: all tasks of the world)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from qlap_runtime.analysis import AnalysisError
+    from qlap_runtime.analysis.results import ResultsConfig, build_results
+
+    script = Path(sys.argv[0]).as_posix() if argv is None else "scripts/learning_results.py"
+    shown = [script, *(sys.argv[1:] if argv is None else argv)]
+    cfg = ResultsConfig(world=args.world, seeds=list(args.seeds), steps=args.steps,
+                        trials=args.trials, every=args.every or None, jobs=args.jobs,
+                        runs_dir=args.runs_dir, out=args.out, tasks=args.tasks, argv=shown)
+    try:
+        return build_results(cfg, echo=lambda s: print(s, flush=True))
+    except AnalysisError as exc:
+        print(f"learning_results.py: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
