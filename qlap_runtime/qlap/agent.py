@@ -226,8 +226,19 @@ class Agent:
             try:
                 changed = self._rebuild(plan, value_maps=value_maps)
             except PlanTooLarge:
-                self._remove_plan(pid)                  # outgrew Params.max_plan_entries
-                continue
+                # Outgrew Params.max_plan_entries: first give up the variables of C_o (§5.4.2,
+                # the plan keeps its DBN's own space), and only if that is still too large
+                # remove the plan (docs/decisions.md 23).
+                if not plan.context_o:
+                    self._remove_plan(pid)
+                    continue
+                plan.context_o = ()
+                plan.recount(self.learner.perception.quantize_var, self._sizes())
+                try:
+                    changed = self._rebuild(plan, value_maps=value_maps)
+                except PlanTooLarge:
+                    self._remove_plan(pid)
+                    continue
             if changed and old_space is not None:
                 self._follow_structure(plan, old_space, old_actions, value_maps, p)
         self._update_self()
@@ -401,13 +412,15 @@ class Agent:
         targeted_mask = targeted(self.learner.perception.satisfied_fraction(), p)
         index = self.learner.perception.events
         dbn_of_plan = {plan.dbn_id for plan in self.plans.values()}
+        with_plans = {plan.action for plan in self.plans.values()}
         ranked: list[tuple[tuple[bool, float, float, int], DBN]] = []
         for dbn_id in sorted(self.learner.dbns):
             dbn = self.learner.dbns[dbn_id]
             if dbn_id in dbn_of_plan:
                 continue
             key = (dbn.consequent.var, dbn.consequent.value)
-            if key not in self.actions or self.actions[key].sufficiently_reliable(p):
+            if key not in self.actions or (self.actions[key].sufficiently_reliable(p)
+                                           and key in with_plans):
                 continue                                              # §6.2.1 item 2
             if dbn.kind == CHANGE:
                 cons_id = index.cons_of_event[index.encode(dbn.consequent)]
@@ -433,7 +446,7 @@ class Agent:
             else:
                 change_plans = sorted((pl for pl in mine if pl.kind == CHANGE), key=lambda x: x.id)
                 slots = plan_slots([pl.plan_stats(t) for pl in change_plans], p,
-                                   self.actions[key])
+                                   self.actions[key] if mine else None)   # decision 36
                 for i in slots.remove:
                     self._remove_plan(change_plans[i].id)
                 if not slots.accepts_new:
@@ -479,8 +492,13 @@ class Agent:
         k = self.learner.k
         self.self_vars = {v.index for v in self.table if v.kind in (Kind.CHANGE, Kind.NOMINAL)
                           and self.actions.is_self(v.index, v.kind, k)}
+        # §6.2.1 restricts learning for a sufficiently reliable action so long as it has a plan
+        # to be performed with: an action that lost its plans (their DBNs deleted or merged by
+        # a landmark) learns again, or it could never be performed (docs/decisions.md).
+        with_plans = {plan.action for plan in self.plans.values()}
         reliable = {key for key, st in self.actions.items()
-                    if self.table[key[0]].kind is not Kind.MOTOR and st.reliable}
+                    if self.table[key[0]].kind is not Kind.MOTOR and st.reliable
+                    and key in with_plans}
         self.learner.reliable_actions = reliable                    # §6.2.1
 
     # ------------------------------------------------------------------------------------------

@@ -853,9 +853,9 @@ class ModelLearner:
                 dbn.context = tuple(ctx)
             if var in dbn.context or a.var == var or d_id == dbn_id:
                 self._recount(dbn)
-        # Drop change DBNs that became duplicates.
+        # Drop change DBNs that became duplicates; a DBN that is a plan is the one kept.
         seen: set[tuple[Event, Event]] = set()
-        for d_id in sorted(self.dbns):
+        for d_id in sorted(self.dbns, key=lambda i: (not self.dbns[i].is_plan, i)):
             dbn = self.dbns[d_id]
             key = (dbn.antecedent, dbn.consequent)
             if key in seen:

@@ -477,3 +477,19 @@ def test_a_landmark_batch_renumbers_the_running_call_list_and_keeps_q(trained):
     assert new_act.value == old_act.value + (2 if old_act.var == u else 0)
     assert plan.q[f0.sub_state, f0.sub] == old_q[old_state, old_sub]
     agent._act(p)                                                       # and it runs on
+
+
+def test_a_reliable_action_that_lost_its_plans_learns_again(tmp_path):
+    """§6.2.1 restricts learning for a sufficiently reliable action only while it has a plan
+    (decision 36): after its plans are removed, a(ẋ, [+]) leaves the learner's restricted set,
+    so DBNs for it may be learned and converted again (here: at the next batch)."""
+    agent, world = Agent(SPECS, PARAMS, seed=0), ToyWorld()
+    run(agent, world, 0, 30_000)
+    up = key_of(agent, "x.dot", 2)
+    assert agent.actions[up].reliable and up in agent.learner.reliable_actions
+    for pid in [pid for pid, p in agent.plans.items() if p.action == up]:
+        agent._remove_plan(pid)
+    agent._update_self()
+    assert up not in agent.learner.reliable_actions
+    run(agent, world, 30_000, 34_001)                  # two DBN batches
+    assert any(p.action == up for p in agent.plans.values())
