@@ -23,6 +23,7 @@ by ``reset(seed)``: the same seed and the same motor sequence give identical obs
 from __future__ import annotations
 
 import abc
+import dataclasses
 import enum
 import math
 from collections.abc import Mapping
@@ -40,6 +41,7 @@ __all__ = [
     "VariableSpec",
     "World",
     "direction",
+    "with_resolution",
 ]
 
 #: The zero band of the agent's directions of change, per second: a derivative
@@ -78,6 +80,10 @@ class VariableSpec:
     """Nominal: the labels; the observation carries the index as a float (0.0, 1.0, ...)."""
     available_from: int = 0
     """The agent step at which the variable first appears in observations (transfer variant)."""
+    resolution: float | None = None
+    """Motors and magnitudes: the smallest difference worth a distinction (the precision of the
+    sensor or actuator). No learned landmark is narrower, and none closer to another. None: the
+    agent's default (1 % of a motor's range; a magnitude's average change per step)."""
 
 
 @dataclass(frozen=True)
@@ -88,6 +94,13 @@ class Goal:
     """A world variable, or its direction of change written ``"<name>.dot"``."""
     value: str
     """For ``.dot`` variables one of ``"+"``, ``"0"``, ``"-"``; for nominal a label."""
+
+
+def with_resolution(specs: tuple[VariableSpec, ...],
+                    resolution: float) -> tuple[VariableSpec, ...]:
+    """``specs`` with ``resolution`` given to every magnitude that has none."""
+    return tuple(dataclasses.replace(v, resolution=resolution)
+                 if v.kind is VarKind.MAGNITUDE and v.resolution is None else v for v in specs)
 
 
 def direction(previous: float, current: float, band: float = DOT_BAND, *, dt: float = 1.0) -> str:

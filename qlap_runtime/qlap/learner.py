@@ -594,17 +594,20 @@ class ModelLearner:
                 if any(found.lb - 2 * b <= lm.ub and lm.lb <= found.ub + 2 * b
                        for lm in space.landmarks):
                     continue                                           # D.3 item 1
-                q = space.interval_of_range(found.lb, found.ub)
+                fitted = self._fit_resolution(v.index, found.lb, found.ub)
+                if fitted is None:
+                    continue
+                q = space.interval_of_range(*fitted)
                 if q is None:
                     continue
                 eid = cvar * 3 + val
-                cands.append((found.delta, eid, v.index, q, found.lb, found.ub))
+                cands.append((found.delta, eid, v.index, q, *fitted))
         # D.3 items 2–3: one per (v, q) and one per event, the highest Δ first.
         cands.sort(key=lambda c: (-c[0], c[1], c[2], c[3]))
         used_vq: set[tuple[int, int]] = set()
         used_e: set[int] = set()
         for _, eid, var, q, lb, ub in cands:
-            if (var, q) in used_vq or eid in used_e:
+            if (var, q) in used_vq or eid in used_e or self._fit_resolution(var, lb, ub) is None:
                 continue
             used_vq.add((var, q))
             used_e.add(eid)

@@ -435,11 +435,13 @@ class Perception:
         return b
 
     def resolution(self, var: int) -> float:
-        """The smallest distinction worth a landmark on ``var``: a motor's
-        ``Params.motor_resolution`` of its range; a magnitude's average change per step (half
-        the §4.4.2 bin). No learned landmark is narrower, and none closer to another
-        (docs/decisions.md)."""
+        """The smallest distinction worth a landmark on ``var``: the world's declared
+        resolution, else a motor's ``Params.motor_resolution`` of its range and a magnitude's
+        average change per step (half the §4.4.2 bin). No learned landmark is narrower, and
+        none closer to another (docs/decisions.md)."""
         v = self.table[var]
+        if v.resolution is not None:
+            return v.resolution
         if v.kind is Kind.MOTOR:
             return self.params.motor_resolution * (float(v.high) - float(v.low))
         return 0.5 * self.bin_size(var)

@@ -47,6 +47,9 @@ class QVar:
     """First step at which the world reports the variable (transfer, §7.5)."""
     source: int = -1
     """For a change variable, the index of its magnitude variable; else −1."""
+    resolution: float | None = None
+    """Motors and magnitudes: the world's resolution (no landmark narrower or closer), or None
+    for the agent's default (``Perception.resolution``)."""
 
 
 class Event(NamedTuple):
@@ -92,12 +95,14 @@ class VariableTable:
                 raise ValueError(f"motor {s.name!r} needs a range low < high, got "
                                  f"[{s.low}, {s.high}]")
             out.append(QVar(len(out), s.name, Kind.MOTOR, low=float(s.low), high=float(s.high),
-                            available_from=int(getattr(s, "available_from", 0))))
+                            available_from=int(getattr(s, "available_from", 0)),
+                            resolution=_resolution(s)))
         mag_index: dict[str, int] = {}
         for s in mags:
             mag_index[s.name] = len(out)
             out.append(QVar(len(out), s.name, Kind.MAGNITUDE,
-                            available_from=int(getattr(s, "available_from", 0))))
+                            available_from=int(getattr(s, "available_from", 0)),
+                            resolution=_resolution(s)))
         for s in mags:
             out.append(QVar(len(out), s.name + DOT, Kind.CHANGE, values=CHANGE_LABELS,
                             available_from=int(getattr(s, "available_from", 0)),
@@ -132,12 +137,25 @@ class VariableTable:
 
     def to_json(self) -> list[dict]:
         return [{"name": v.name, "kind": v.kind.value, "values": list(v.values), "low": v.low,
-                 "high": v.high, "available_from": v.available_from, "source": v.source}
+                 "high": v.high, "available_from": v.available_from, "source": v.source,
+                 "resolution": v.resolution}
                 for v in self.vars]
 
     @classmethod
     def from_json(cls, data: list[dict]) -> VariableTable:
         return cls([QVar(i, d["name"], Kind(d["kind"]), tuple(d.get("values", ())),
                          d.get("low"), d.get("high"), int(d.get("available_from", 0)),
-                         int(d.get("source", -1))) for i, d in enumerate(data)])
+                         int(d.get("source", -1)), d.get("resolution"))
+                    for i, d in enumerate(data)])
 
+
+def _resolution(spec: Any) -> float | None:
+    """A world variable's declared resolution, validated (positive and finite) or None."""
+    r = getattr(spec, "resolution", None)
+    if r is None:
+        return None
+    r = float(r)
+    if not (r > 0 and r < float("inf")):
+        raise ValueError(f"variable {spec.name!r} has resolution {r!r}; expected a positive "
+                         "finite number or None")
+    return r

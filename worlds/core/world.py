@@ -60,7 +60,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from worlds.base import VariableSpec, VarKind, World
+from worlds.base import VariableSpec, VarKind, World, with_resolution
 from worlds.core.floating import FloatingBalls
 
 __all__ = ["CoreWorld", "make_core"]
@@ -123,6 +123,11 @@ VARIANTS = (
     "contingent",
     "transfer",
 )
+
+
+RESOLUTION = 0.1
+"""Resolution of every position-like magnitude (a tenth of a unit, about 7 mm at the scale of
+§7.1; a hand step at moderate force is 0.1–0.2): no landmark is narrower or closer."""
 
 
 def _m(name: str, meaning: str, available_from: int = 0) -> VariableSpec:
@@ -262,7 +267,7 @@ class CoreWorld(World):
             variables.extend(RELEVANT2)
         if self.secondary:
             variables.extend(SECONDARY)
-        self._init_variables(tuple(variables))
+        self._init_variables(with_resolution(tuple(variables), RESOLUTION))
         names = {v.name for v in variables}
         self.rare_variables = tuple(n for n in ("T", "bang", "m_BB") if n in names)
         self._build_model()

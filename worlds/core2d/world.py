@@ -24,7 +24,10 @@ from typing import Any
 import numpy as np
 import pymunk
 
-from worlds.base import Goal, Task, VariableSpec, VarKind, World
+from worlds.base import Goal, Task, VariableSpec, VarKind, World, with_resolution
+
+RESOLUTION = 0.1
+"""Resolution of the position-like magnitudes, as in core (a tenth of a unit)."""
 
 __all__ = ["Core2DWorld", "make_core2d"]
 
@@ -141,7 +144,7 @@ class Core2DWorld(World):
     step_seconds = DT * SUBSTEPS
 
     def __init__(self) -> None:
-        self._init_variables(VARIABLES)
+        self._init_variables(with_resolution(VARIABLES, RESOLUTION))
         self.tasks = MappingProxyType({"move_block": MoveBlock2D()})
         self.agent_options = MappingProxyType({})
         self.reset()
