@@ -1,10 +1,21 @@
 """Saving and loading the learner's whole state: documented JSON + npz, versioned, no pickle.
 
-A checkpoint is a directory holding ``<name>.json`` (structure, small values) and ``<name>.npz``
-(arrays, loaded with ``allow_pickle=False``). Both are written to temporary files and renamed, so
-a crash never leaves a half-written checkpoint. The JSON's ``format`` and ``version`` fields are
-checked on load; a missing, corrupt or foreign checkpoint raises :class:`CheckpointError` with
-the path and the reason. Schema: ``docs/checkpoint.md``.
+A checkpoint is a directory holding ``<name>.json`` (structure, small values, compact JSON) and
+``<name>.npz`` (arrays, loaded with ``allow_pickle=False``). Both are written to temporary files
+and renamed, so a crash never leaves a half-written checkpoint. The JSON's ``format`` and
+``version`` fields are checked on load; a missing, corrupt or foreign checkpoint raises
+:class:`CheckpointError` with the path and the reason. Schema: ``docs/checkpoint.md``.
+
+Version 2 (compact): every array is in the npz (the plans' Q-tables too), the JSON has no
+indentation, and the real-valued state rows (DBN activations, plan calls, the perception
+history) are stored once in a table of distinct rows (byte-for-byte, so NaN and -0.0 survive)
+with an index per array — the same world state is shared by many DBNs activated at one step.
+Version 1 checkpoints are still read.
+
+A run directory's ``checkpoints/`` holds ``step-NNNNNNN/`` every 10,000 steps (§7.2) and
+``final``: a directory, or, when the last ``step-N`` holds exactly the final state, a symbolic
+link to it (a small marker file naming it where links cannot be made);
+:func:`resolve_checkpoint` follows both. :func:`prune_checkpoints` keeps the newest N.
 """
 
 from __future__ import annotations
@@ -12,6 +23,8 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
+import shutil
 import tempfile
 from collections import deque
 from pathlib import Path
@@ -27,7 +40,16 @@ from .quantity import QuantitySpace
 from .variables import Event, VariableTable
 
 FORMAT = "qlap-learner"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
+"""Versions :func:`read_checkpoint` reads (1: arrays partly in indented JSON; 2: compact)."""
+
+ROWS = "_rows"
+"""The npz entry (version 2) holding the distinct state rows; an array ``K`` stored as rows is
+written as ``K@rows``, the int32 index of each of its rows in that table."""
+LINK_MARKER = "qlap-checkpoint-link"
+"""First word of a marker file that stands for a checkpoint directory (``final`` where symbolic
+links cannot be made): ``qlap-checkpoint-link step-0250000``."""
 
 
 class CheckpointError(ValueError):
@@ -52,7 +74,66 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
+    """Human-readable JSON (indented, sorted keys): summary.json, knowledge.json."""
     atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=True).encode())
+
+
+def _write_compact_json(path: Path, obj: Any) -> None:
+    atomic_write_bytes(path, json.dumps(obj, separators=(",", ":")).encode())
+
+
+def _pack_rows(arrays: dict[str, np.ndarray], keys: list[str]) -> dict[str, np.ndarray]:
+    """Store the 2-D float arrays ``keys`` as indices into one table of distinct rows."""
+    keys = [k for k in keys if arrays[k].ndim == 2 and arrays[k].size]
+    if not keys:
+        return arrays
+    width = arrays[keys[0]].shape[1]
+    keys = [k for k in keys if arrays[k].shape[1] == width and arrays[k].dtype == np.float64]
+    stacked = np.ascontiguousarray(np.concatenate([arrays[k] for k in keys]))
+    rows = stacked.view(np.dtype((np.void, stacked.dtype.itemsize * width))).ravel()
+    distinct, index = np.unique(rows, return_inverse=True)
+    out = {k: v for k, v in arrays.items() if k not in keys}
+    out[ROWS] = distinct.view(np.float64).reshape(len(distinct), width)
+    index = index.astype(np.int32).ravel()
+    at = 0
+    for k in keys:
+        n = arrays[k].shape[0]
+        out[f"{k}@rows"] = index[at:at + n]
+        at += n
+    return out
+
+
+def _unpack_rows(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Inverse of :func:`_pack_rows`."""
+    table = arrays.pop(ROWS, None)
+    for k in [k for k in arrays if k.endswith("@rows")]:
+        if table is None:
+            raise ValueError(f"{k} without the {ROWS} table")
+        arrays[k[:-5]] = table[arrays.pop(k)]
+    return arrays
+
+
+def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """The checkpoint directory ``path`` stands for: itself, or the directory a marker file
+    (``qlap-checkpoint-link NAME``, NAME beside it) names. Symbolic links need no help."""
+    path = Path(path)
+    if path.is_file() and path.stat().st_size < 256:
+        text = path.read_text(errors="replace").split()
+        if len(text) == 2 and text[0] == LINK_MARKER and "/" not in text[1] \
+                and text[1] not in (".", ".."):
+            return path.parent / text[1]
+    return path
 
 
 def learner_state(learner: ModelLearner) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -105,16 +186,16 @@ def save_learner(learner: ModelLearner, directory: str | Path, name: str = "lear
     """Write the learner's state to ``directory/name.{json,npz}`` atomically."""
     directory = Path(directory)
     meta, arrays = learner_state(learner)
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    atomic_write_bytes(directory / f"{name}.npz", buf.getvalue())
-    atomic_write_json(directory / f"{name}.json", meta)
+    rows = ["perception.hist_x"] + [k for k in arrays if k.startswith("dbn.")
+                                    and k.endswith(("act_x", "pending_x"))]
+    _write_npz(directory / f"{name}.npz", _pack_rows(arrays, rows))
+    _write_compact_json(directory / f"{name}.json", meta)
     return directory
 
 
 def read_checkpoint(directory: str | Path, name: str = "learner"
                     ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    directory = Path(directory)
+    directory = resolve_checkpoint(directory)
     jpath, npath = directory / f"{name}.json", directory / f"{name}.npz"
     try:
         meta = json.loads(jpath.read_text())
@@ -124,12 +205,12 @@ def read_checkpoint(directory: str | Path, name: str = "learner"
         raise CheckpointError(f"{jpath}: corrupt JSON ({exc})") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise CheckpointError(f"{jpath}: not a {FORMAT} checkpoint")
-    if meta.get("version") != VERSION:
-        raise CheckpointError(f"{jpath}: version {meta.get('version')!r} is not supported "
-                              f"(this build reads version {VERSION})")
+    if meta.get("version") not in READABLE_VERSIONS:
+        raise CheckpointError(f"{jpath}: {FORMAT} version {meta.get('version')!r} is not "
+                              f"supported (this build reads versions "
+                              f"{', '.join(map(str, READABLE_VERSIONS))})")
     try:
-        with np.load(npath, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
+        arrays = _unpack_rows(_read_npz(npath))
     except FileNotFoundError:
         raise CheckpointError(f"{npath}: no such checkpoint file") from None
     except Exception as exc:  # zipfile/np errors on corrupt data
@@ -201,7 +282,9 @@ def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Mode
 # The whole agent (ch. 5–6): the learner's files plus agent.json / agent.npz
 # ---------------------------------------------------------------------------------------------
 AGENT_FORMAT = "qlap-agent"
-AGENT_VERSION = 1
+AGENT_VERSION = 2
+AGENT_READABLE_VERSIONS = (1, 2)
+"""1: Q-tables in agent.json (indented); 2: Q-tables in agent.npz, compact JSON."""
 
 
 def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> Path:
@@ -209,8 +292,6 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> P
 
     ``world``: the spec of the world the agent learned in (``qlap eval``/``qlap curve`` read it
     so that an evaluation needs no ``--world``)."""
-    from .mdp import q_to_state
-
     directory = Path(directory)
     save_learner(agent.learner, directory)
     arrays: dict[str, np.ndarray] = {}
@@ -220,8 +301,8 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> P
         plans.append({"id": pl.id, "dbn_id": pl.dbn_id, "kind": pl.kind, "created": pl.created,
                       "context_o": list(pl.context_o), "call_n": pl.call_n,
                       "call_head": pl.call_head, "calls": pl.calls,
-                      "successes": pl.successes, "ever_reliable": bool(pl.ever_reliable),
-                      "q": q_to_state(pl.q)})
+                      "successes": pl.successes, "ever_reliable": bool(pl.ever_reliable)})
+        arrays[f"plan.{pid}.q"] = np.asarray(pl.q, dtype=float)
         arrays[f"plan.{pid}.call_x"] = pl.call_x
         arrays[f"plan.{pid}.call_ok"] = pl.call_ok
         arrays[f"plan.{pid}.cpt_s"] = pl.cpt_s
@@ -244,10 +325,9 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> P
     }
     if world is not None:
         meta["world"] = str(world)
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    atomic_write_bytes(directory / "agent.npz", buf.getvalue())
-    atomic_write_json(directory / "agent.json", meta)
+    _write_npz(directory / "agent.npz",
+               _pack_rows(arrays, [k for k in arrays if k.endswith(".call_x")]))
+    _write_compact_json(directory / "agent.json", meta)
     return directory
 
 
@@ -256,23 +336,26 @@ def load_agent(directory: str | Path) -> Any:
     from .actions import ActionTable
     from .agent import Agent, AgentCounters, Frame
     from .curiosity import IACChoice
-    from .mdp import SarsaLambda, q_from_state
+    from .mdp import NOT_APPLICABLE, SarsaLambda, q_from_state
     from .planner import Plan
 
-    directory = Path(directory)
+    directory = resolve_checkpoint(directory)
     learner = load_learner(directory)
     jpath = directory / "agent.json"
     try:
         meta = json.loads(jpath.read_text())
-        with np.load(directory / "agent.npz", allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
+        arrays = _unpack_rows(_read_npz(directory / "agent.npz"))
     except FileNotFoundError as exc:
         raise CheckpointError(f"{directory}: not an agent checkpoint ({exc.filename} missing)"
                               ) from None
     except Exception as exc:
         raise CheckpointError(f"{directory}: corrupt agent checkpoint ({exc})") from None
-    if meta.get("format") != AGENT_FORMAT or meta.get("version") != AGENT_VERSION:
-        raise CheckpointError(f"{jpath}: not a {AGENT_FORMAT} v{AGENT_VERSION} checkpoint")
+    if not isinstance(meta, dict) or meta.get("format") != AGENT_FORMAT:
+        raise CheckpointError(f"{jpath}: not a {AGENT_FORMAT} checkpoint")
+    if meta.get("version") not in AGENT_READABLE_VERSIONS:
+        raise CheckpointError(f"{jpath}: {AGENT_FORMAT} version {meta.get('version')!r} is "
+                              f"not supported (this build reads versions "
+                              f"{', '.join(map(str, AGENT_READABLE_VERSIONS))})")
     try:
         agent = Agent(learner.table, learner.params)
         agent.learner = learner
@@ -294,7 +377,11 @@ def load_agent(directory: str | Path) -> Any:
             pl.cpt_f = arrays[f"plan.{pid}.cpt_f"].astype(float)
             agent.plans[pid] = pl
             agent._rebuild(pl, fresh=True)
-            pl.q = q_from_state(d["q"])
+            if "q" in d:                                        # version 1
+                pl.q = q_from_state(d["q"])
+            else:
+                q = arrays[f"plan.{pid}.q"].astype(float)
+                pl.q = np.where(np.isfinite(q), q, NOT_APPLICABLE)
             traces = arrays[f"plan.{pid}.traces"]
             pl.sarsa = SarsaLambda(pl.q, learner.params,
                                    traces.astype(float) if traces.size else None)
@@ -316,3 +403,96 @@ def load_agent(directory: str | Path) -> Any:
         raise CheckpointError(f"{directory}: inconsistent agent checkpoint "
                               f"({type(exc).__name__}: {exc})") from None
     return agent
+
+
+# ---------------------------------------------------------------------------------------------
+# A run's checkpoints: step-NNNNNNN every N steps, retention, and final
+# ---------------------------------------------------------------------------------------------
+_STEP_DIR = re.compile(r"step-(\d+)")
+
+
+def step_name(step: int) -> str:
+    """``step-NNNNNNN``: the checkpoint taken when the agent has observed ``step`` steps."""
+    return f"step-{int(step):07d}"
+
+
+def step_checkpoints(checkpoints: str | Path) -> list[tuple[int, Path]]:
+    """The ``step-N`` directories of a run's ``checkpoints/``, by step."""
+    root = Path(checkpoints)
+    found = []
+    for d in root.glob("step-*") if root.is_dir() else ():
+        m = _STEP_DIR.fullmatch(d.name)
+        if m and d.is_dir() and not d.is_symlink():
+            found.append((int(m[1]), d))
+    return sorted(found)
+
+
+def final_target(checkpoints: str | Path) -> Path | None:
+    """The directory ``checkpoints/final`` stands for (None when there is no final)."""
+    final = Path(checkpoints) / "final"
+    if not final.exists():
+        return None
+    return resolve_checkpoint(final).resolve()
+
+
+def prune_checkpoints(checkpoints: str | Path, keep: int | None) -> list[Path]:
+    """Remove all but the newest ``keep`` ``step-N`` directories (None: keep all); the one
+    ``final`` stands for is never removed. Returns the removed directories."""
+    if keep is None:
+        return []
+    target = final_target(checkpoints)
+    steps = step_checkpoints(checkpoints)
+    doomed = steps[:max(0, len(steps) - keep)]
+    removed = []
+    for _, d in doomed:
+        if target is not None and d.resolve() == target:
+            continue
+        shutil.rmtree(d, ignore_errors=True)
+        removed.append(d)
+    return removed
+
+
+def save_step_checkpoint(agent: Any, checkpoints: str | Path, step: int,
+                         world: str | None = None, keep: int | None = None) -> Path | None:
+    """The periodic checkpoint ``checkpoints/step-NNNNNNN`` (``step``: steps observed), then
+    the retention of ``keep`` (None: keep all; 0: write none). Returns its path (None with
+    ``keep == 0``)."""
+    if keep == 0:
+        return None
+    path = save_agent(agent, Path(checkpoints) / step_name(step), world)
+    prune_checkpoints(checkpoints, keep)
+    return path
+
+
+def _remove(path: Path) -> None:
+    if path.is_symlink() or path.is_file():
+        path.unlink()
+    elif path.is_dir():
+        shutil.rmtree(path)
+
+
+def save_final_checkpoint(agent: Any, checkpoints: str | Path, world: str | None = None,
+                          same_as: str | Path | None = None) -> Path:
+    """Write ``checkpoints/final``. ``same_as``: a ``step-N`` directory beside it that holds
+    exactly this agent's state (saved at this step, nothing changed since); ``final`` is then
+    a relative symbolic link to it (a marker file where links cannot be made), not a copy."""
+    root = Path(checkpoints)
+    root.mkdir(parents=True, exist_ok=True)
+    final = root / "final"
+    tmp = root / f".final-{os.getpid()}.tmp"
+    _remove(tmp)
+    same = Path(same_as) if same_as is not None else None
+    if same is not None and same.parent.resolve() == root.resolve() \
+            and (same / "agent.json").is_file():
+        try:
+            os.symlink(same.name, tmp, target_is_directory=True)
+        except OSError:                                     # no links here: a marker file
+            tmp.write_text(f"{LINK_MARKER} {same.name}\n")
+    else:
+        save_agent(agent, tmp, world)
+    if tmp.is_dir() and not tmp.is_symlink():
+        _remove(final)                  # rename(2) puts a directory only where none is
+    elif final.is_dir() and not final.is_symlink():
+        shutil.rmtree(final)
+    os.replace(tmp, final)
+    return final

@@ -716,6 +716,8 @@ class ModelLearner:
         if ub - lb < res:
             c = 0.5 * (lb + ub)
             lb, ub = c - 0.5 * res, c + 0.5 * res
+            while ub - lb < res:                        # rounding: at least res, exactly
+                ub = float(np.nextafter(ub, np.inf))
         for lm in self.perception.spaces[var].landmarks:
             if max(lm.lb - ub, lb - lm.ub) < res:
                 return None

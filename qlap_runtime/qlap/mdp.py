@@ -560,10 +560,19 @@ def value_iteration(model: TransitionModel, params: Params) -> np.ndarray:
     ``value_iteration_max_sweeps`` sweeps. Inapplicable pairs hold :data:`NOT_APPLICABLE`.
     """
     q = model.initial_q()
+    # eq. 5.6 with the constant parts of :meth:`TransitionModel.backup` taken out of the loop.
+    r1, r2 = model.rewards(params)
+    p1 = model.p1
+    p2 = 1.0 - p1
+    expected_r = p1 * r1 + p2 * r2
+    g = params.gamma
+    appl = model.applicable
+    n1, n2 = model.next1, model.next2
     for _ in range(params.value_iteration_max_sweeps):
-        new = model.backup(q, params)
-        m = model.applicable
-        delta = float(np.max(np.abs(new[m] - q[m]), initial=0.0))
+        v = state_values(q)
+        new = np.where(appl, expected_r + g * (p1 * v[n1] + p2 * v[n2]), NOT_APPLICABLE)
+        with np.errstate(invalid="ignore"):
+            delta = float(np.max(np.abs(new - q), where=appl, initial=0.0))
         q = new
         if delta < params.value_iteration_tol:
             break
@@ -763,7 +772,9 @@ def space_value_maps(old: PlanStateSpace, new: PlanStateSpace,
 
 def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPAction],
            new: PlanStateSpace, new_actions: Sequence[MDPAction],
-           value_maps: Mapping[int, np.ndarray], base: np.ndarray) -> np.ndarray | None:
+           value_maps: Mapping[int, np.ndarray],
+           base: np.ndarray | Callable[[], np.ndarray],
+           applicable: np.ndarray | None = None) -> np.ndarray | None:
     """Carry a plan's learned Q-values over a change of its state space (§5.2.2, §5.4.2).
 
     Each new state inherits the values of the old state it descends from: a value split by a
@@ -772,7 +783,9 @@ def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPActi
     merge. Actions follow :func:`action_map`. Pairs with no ancestor (new actions, pairs that
     became applicable) take ``base`` (e.g. Q* of the new model by value iteration); pairs not
     applicable in ``base`` (−inf) stay so. None when a variable's values cannot be followed
-    (:func:`space_value_maps`).
+    (:func:`space_value_maps`). ``base`` may be a function computing it, with the new model's
+    ``applicable`` mask: it is then called only if some applicable pair has no ancestor (value
+    iteration is the expensive part of a rebuild, and most growths leave none).
     """
     maps = space_value_maps(old, new, value_maps)
     if maps is None:
@@ -799,6 +812,15 @@ def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPActi
         finite = np.isfinite(block)
         acc += np.where(finite, block, 0.0)
         cnt += finite
+    if callable(base):
+        if applicable is None:
+            raise ValueError("grow_q: a callable base needs the applicable mask")
+        inherited = np.zeros(applicable.shape, dtype=bool)
+        inherited[:, known] = cnt > 0
+        if (applicable & ~inherited).any():
+            base = base()
+        else:
+            base = np.where(applicable, 0.0, NOT_APPLICABLE)
     out = np.array(base, dtype=float, copy=True)
     sub = out[:, known]
     ok = (cnt > 0) & np.isfinite(sub)

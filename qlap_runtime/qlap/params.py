@@ -162,7 +162,7 @@ class Params:
     plan_remove_below: float = 0.05
     """A plan whose rel(o) falls below this is removed (§6.2.2)."""
 
-    max_plan_entries: int = 50_000
+    max_plan_entries: int = 300_000
     """Resource limit: a plan's Q-table may hold at most this many (state, action) entries.
     A DBN whose plan would be larger is not converted, a C_o that would make it larger is not
     adopted, and a plan that outgrows it (new landmarks) is removed (§8.3; without it the state

@@ -122,12 +122,13 @@ class Plan:
         self.usable = usable
         self.model = self._model(rel_action, rel_model)
         if not same:
-            base = value_iteration(self.model, self.params)
+            model, params = self.model, self.params
             grown = None
             if not fresh and old_space is not None:
                 grown = grow_q(old_q, old_space, old_actions, space, actions,
-                               value_maps or {}, base)
-            self.q = base if grown is None else grown
+                               value_maps or {}, lambda: value_iteration(model, params),
+                               model.applicable)
+            self.q = value_iteration(model, params) if grown is None else grown
             self.sarsa = SarsaLambda(self.q, self.params)
         return not same
 
