@@ -54,7 +54,7 @@ from .mdp import (
 from .params import Params
 from .perception import Percept
 from .planner import Plan, PlanTooLarge, creates_cycle, dbn_rel_state, plan_entries
-from .probability import prob_above
+from .probability import prob_above, success_probability
 from .variables import Kind, VariableTable
 
 RUN, SUCCESS, FAIL = "run", "success", "fail"
@@ -405,8 +405,9 @@ class Agent:
     def _convert_dbns_to_plans(self, t: int) -> None:
         """Line 15 of Algorithm 2 with the restrictions of §6.2.1–6.2.2 and §6.3.
 
-        The DBNs that qualify compete for the plan slots best first: highest brel, then lowest
-        entropy H(r) (the order of Algorithm 3's measures), then the older DBN.
+        The DBNs that qualify compete for the plan slots best first: highest overall
+        reliability rel(r) (Table 5.1; how often it works from the states the agent is in, as
+        §6.2.2 judges plans by rel(o)), then highest brel, lowest entropy H(r), the older DBN.
         """
         p = self.params
         targeted_mask = targeted(self.learner.perception.satisfied_fraction(), p)
@@ -428,7 +429,10 @@ class Agent:
                 if not (dbn.ever_reliable or (tgt and self._reliable_at(dbn, p.theta_sr_targeted))):
                     continue                                          # §5.2, §6.3
             st = model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), p)
-            ranked.append(((st.brel is None, -(st.brel or 0.0), st.entropy, dbn_id), dbn))
+            overall = success_probability(float(dbn.cpt_s.sum()), float(dbn.cpt_f.sum()),
+                                          p.prior)
+            ranked.append(((-overall, st.brel is None, -(st.brel or 0.0), st.entropy, dbn_id),
+                           dbn))
         ranked.sort(key=lambda r: r[0])
         edges = self._plan_edges()
         for _, dbn in ranked:
