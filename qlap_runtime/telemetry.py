@@ -21,6 +21,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from .bus.schema import (
     ActionInfo,
     AgentStatus,
@@ -41,11 +43,14 @@ HISTORY = 32
 """rel(a) values per action carried in a snapshot (the sparkline's width)."""
 
 _DOT = re.compile(r"\b(\w)(\w*)\.dot\b")
+_NEG_ZERO = re.compile(r"(?<![\w.])-(0(?:\.0*)?)(?![\w.])")
 
 
 def pretty(text: str) -> str:
-    """The reference's notation: ``h_x.dot`` → ``ḣ_x``, ``+inf`` → ``+∞`` (as ``qlap show``)."""
+    """The reference's notation: ``h_x.dot`` → ``ḣ_x``, ``+inf`` → ``+∞``, ``-inf`` → ``−∞``
+    (as ``qlap show``), and a zero is ``0``, never ``-0`` (a motor's initial landmark)."""
     text = _DOT.sub(lambda m: m.group(1) + "\u0307" + m.group(2), text)
+    text = _NEG_ZERO.sub(r"\1", text)
     return text.replace("+inf", "+∞").replace("-inf", "−∞")
 
 
@@ -158,32 +163,57 @@ def iac_msgs(agent: Any, after_step: int) -> list[IACChoice]:
 
 
 def world_msg(agent: Any, world: Any, width: int = 44, height: int = 14) -> WorldView:
-    """The world's text drawing, its raw values, the motor values and the agent's percept."""
+    """The world as it is now, every row from the same step: the drawing, the raw values, the
+    motor command that produced them (the agent's latest), and their qualitative values under
+    the agent's current landmarks (what its next percept will be; a derivative is the change
+    since the agent's latest percept, none across a discontinuity).
+
+    The message's ``step`` is the agent's latest step t; the world is then at its own
+    ``t + 1`` (the step the agent will sense next), which is what the UI calls step t + 1.
+    """
     try:
         text = world.render_text(width, height)
     except Exception as e:  # a drawing must never stop the run
         text = f"(no drawing: {type(e).__name__})"
-    values = {k: _finite(v, 0.0) for k, v in dict(world.observation).items()}
+    obs = dict(world.observation)
+    values = {k: _finite(v, 0.0) for k, v in obs.items()}
     motor = {k: _finite(v, 0.0) for k, v in agent.motor.items()}
     qualitative: dict[str, str] = {}
-    p = agent._last_percept
-    if p is not None:
-        for v in agent.table:
-            q = int(p.q[v.index])
-            if q >= 0:
-                qualitative[v.name] = agent.learner.value_label(v.index, q)
-    return WorldView(max(agent.step_count, 0), str(getattr(world, "name", "")), text, values,
+    if agent._last_percept is not None:
+        try:
+            qualitative = _qualitative_now(agent, {**obs, **agent.motor},
+                                           bool(getattr(world, "discontinuity", False)))
+        except Exception:  # a display must never stop the run (e.g. an invalid observation)
+            qualitative = {}
+    return WorldView(agent.step_count, str(getattr(world, "name", "")), text, values,
                      motor, qualitative)
+
+
+def _qualitative_now(agent: Any, full: dict[str, float], discontinuity: bool) -> dict[str, str]:
+    """Labels of the qualitative values of ``full`` (world values and motor command) as the
+    agent's perception would classify them, without changing it."""
+    learner = agent.learner
+    perception = learner.perception
+    x = perception.vector(full)
+    dt = perception.params.step_seconds
+    for v in agent.table:
+        if v.kind is Kind.CHANGE:
+            x[v.index] = (np.nan if discontinuity
+                          else (x[v.source] - perception.prev_x[v.source]) / dt)
+    q = perception.quantize(x)
+    return {v.name: learner.value_label(v.index, int(q[v.index]))
+            for v in agent.table if q[v.index] >= 0}
 
 
 def status_msg(agent: Any, *, steps_per_s: float, paused: bool, finished: bool = False,
                speed: float = 0.0, clock: str = "free", placement: str = "embedded",
                world: str = "", seed: int = 0, late_ticks: int = 0, missed_ticks: int = 0,
                wall_s: float = 0.0, message: str = "") -> AgentStatus:
-    """The agent's runtime state."""
+    """The agent's runtime state; ``step`` is the agent's latest step t (−1 before the first),
+    so t + 1 steps are done (the UI shows t + 1)."""
     goal = _action_label(agent, agent.goal) if agent.goal is not None else ""
     pending = len(getattr(agent.learner, "pending_deltas", ()) or ())
-    return AgentStatus(max(agent.step_count, 0), round(_finite(steps_per_s, 0.0), 1),
+    return AgentStatus(agent.step_count, round(_finite(steps_per_s, 0.0), 1),
                        str(agent.mode), paused, finished, float(speed), clock, placement, world,
                        int(seed), goal, bool(agent.learning), int(pending), int(late_ticks),
                        int(missed_ticks), round(_finite(wall_s, 0.0), 3), message)

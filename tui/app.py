@@ -15,20 +15,24 @@ and updates the panels: the agent never waits for the UI, and a burst costs one 
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import zenoh
+from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
-from textual.containers import Container, Vertical
+from textual.containers import Container
 from textual.css.query import NoMatches
-from textual.widgets import Footer, Header
+from textual.geometry import Size
+from textual.widgets import Footer
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.config import client_config
 from qlap_runtime.bus.schema import (
+    ActionInfo,
     AgentStatus,
     CallList,
     Control,
@@ -50,13 +54,28 @@ from .widgets import (
     LandmarksPanel,
     PlansPanel,
     RuntimePanel,
+    StatusBar,
+    ViewTabs,
     WorldPanel,
 )
+from .widgets._format import steps_done
 
 SPEEDS = (0.0, 1000.0, 300.0, 100.0, 30.0, 10.0, 3.0, 1.0)
 """The speed ladder of + and −, fastest first (0 = as fast as possible)."""
 
 LATEST = ("knowledge", "calllist", "world", "status")
+
+VIEWS = (("plans", "Plans"), ("iac", "IAC"), ("world", "World"), ("calllist", "Call list"),
+         ("landmarks", "Landmarks"), ("counters", "Counters"), ("runtime", "Runtime"))
+"""The panels below the actions in the compact layout, in the order ``v`` cycles them."""
+
+WIDE = Size(144, 40)
+"""The smallest terminal that gets every panel at once; below it (either way) the compact
+layout shows the actions and one other panel at a time."""
+
+PENDING_S = 3.0
+"""How long a pressed key's intended state (pause, speed) counts before the agent's status
+has confirmed it, so that quick presses build on each other instead of on a stale status."""
 
 
 class BusFeed:
@@ -137,20 +156,29 @@ class QlapApp(App):
 
     TITLE = "QLAP"
     CSS = """
-    #main { layout: grid; grid-size: 6 3; grid-rows: 2fr 1fr 1fr; }
-    #actions { column-span: 3; }
-    #plans { column-span: 3; }
-    #iac, #middle, #world, #counters, #runtime { column-span: 2; }
-    #middle { layout: vertical; }
-    #world { row-span: 2; }
+    #main { layout: grid; grid-size: 12 4; grid-rows: 1fr 7 1fr 10; }
+    #main > * { height: 1fr; }
+    #actions, #plans { column-span: 6; }
+    #iac { column-span: 4; row-span: 2; }
+    #calllist, #landmarks, #counters, #runtime { column-span: 4; }
+    #world { column-span: 4; row-span: 3; }
+    #viewtabs { display: none; }
+    Screen.-compact #main { layout: vertical; }
+    Screen.-compact #actions { height: 1fr; }
+    Screen.-compact #viewtabs { display: block; height: 1; }
+    Screen.-compact .view { display: none; height: 1fr; }
+    Screen.-compact .view.-shown { display: block; }
     """
     BINDINGS: ClassVar[list[BindingType]] = [
-        Binding("p", "toggle_pause", "Pause/Resume"),
+        Binding("p", "toggle_pause", "Pause"),
         Binding("s", "single_step", "Step"),
-        Binding("plus,equals_sign", "faster", "+Speed", key_display="+"),
-        Binding("minus", "slower", "-Speed", key_display="-"),
-        Binding("c", "checkpoint", "Checkpoint"),
+        Binding("plus,equals_sign", "faster", "Faster", key_display="+"),
+        Binding("minus", "slower", "Slower", key_display="-"),
+        Binding("c", "checkpoint", "Save"),
         Binding("g", "goal", "Goal"),
+        Binding("v", "next_view", "View"),
+        *(Binding(str(i), f"view('{key}')", name, show=False)
+          for i, (key, name) in enumerate(VIEWS, 1)),
         Binding("question_mark", "help", "Help", key_display="?"),
         Binding("q", "quit", "Quit"),
     ]
@@ -185,21 +213,26 @@ class QlapApp(App):
         self._control_pub: Any = None
         self._closed = False
         self._refresh_timer: Any = None
+        self.compact = False
+        """The compact layout (a terminal smaller than :data:`WIDE`) is on."""
+        self.view = VIEWS[0][0]
+        """The panel shown below the actions in the compact layout."""
+        self._pending: dict[str, tuple[Any, float]] = {}
 
     # ----------------------------------------------------------------------------- layout
     def compose(self) -> ComposeResult:
-        yield Header(show_clock=False)
+        yield StatusBar(id="statusbar")
         with Container(id="main"):
             yield ActionsPanel(id="actions")
-            yield PlansPanel(id="plans")
-            yield IACPanel(id="iac")
-            with Vertical(id="middle"):
-                yield CallListPanel(id="calllist")
-                yield LandmarksPanel(id="landmarks")
-            yield WorldPanel(id="world")
-            yield CountersPanel(id="counters")
-            yield RuntimePanel(id="runtime")
-        yield Footer()
+            yield ViewTabs(VIEWS, id="viewtabs")
+            yield PlansPanel(id="plans", classes="view -shown")
+            yield IACPanel(id="iac", classes="view")
+            yield CallListPanel(id="calllist", classes="view")
+            yield WorldPanel(id="world", classes="view")
+            yield LandmarksPanel(id="landmarks", classes="view")
+            yield CountersPanel(id="counters", classes="view")
+            yield RuntimePanel(id="runtime", classes="view")
+        yield Footer(show_command_palette=False)
 
     def _panel(self, cls):
         """A panel of the main screen, also while a dialog (goal, help) is on top."""
@@ -221,7 +254,46 @@ class QlapApp(App):
                               else ", ".join([self._connect] if isinstance(self._connect, str)
                                              else list(self._connect or ())))
         runtime.show()
+        bar = self._panel(StatusBar)
+        bar.run_id = self.run_id or ""
+        bar.show(None)
         self.sub_title = f"run {self.run_id or '(any)'}"
+        self._set_layout(self.size)
+
+    # ------------------------------------------------------------------ wide / compact layout
+    def on_resize(self, event: events.Resize) -> None:
+        self._set_layout(event.size)
+
+    def _set_layout(self, size: Size) -> None:
+        """The wide layout (every panel) from :data:`WIDE` up, else the compact one."""
+        compact = size.width < WIDE.width or size.height < WIDE.height
+        self.compact = compact
+        try:
+            screen = self.screen_stack[0]
+            screen.set_class(compact, "-compact")
+            screen.query_one(Footer).compact = compact
+        except (IndexError, NoMatches):
+            return
+        self.refresh_bindings()
+
+    def action_view(self, key: str) -> None:
+        """Compact layout: show panel ``key`` below the actions."""
+        if key not in dict(VIEWS):
+            return
+        self.view = key
+        screen = self.screen_stack[0]
+        for k, _ in VIEWS:
+            screen.query_one(f"#{k}").set_class(k == key, "-shown")
+        screen.query_one(ViewTabs).show(key)
+
+    def action_next_view(self) -> None:
+        order = [k for k, _ in VIEWS]
+        self.action_view(order[(order.index(self.view) + 1) % len(order)])
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if action in ("next_view", "view") and not self.compact:
+            return False                      # the wide layout shows every panel
+        return True
 
     def on_ready(self) -> None:
         # Start draining only once every panel has composed its children (``Ready`` comes
@@ -250,6 +322,7 @@ class QlapApp(App):
             self.run_id = self.feed.run_id
             self.sub_title = f"run {self.run_id}"
             self._panel(RuntimePanel).run_id = self.run_id
+            self._panel(StatusBar).run_id = self.run_id
         for actor, up in alive:
             (self.alive.add if up else self.alive.discard)(actor)
         for s in stats:
@@ -274,6 +347,7 @@ class QlapApp(App):
         if "status" in latest:
             self.status = latest["status"]
             self._panel(CallListPanel).update_calllist(goal=self.status.goal)
+            self._panel(StatusBar).show(self.status)
         if "status" in latest or alive or stats:
             self._panel(RuntimePanel).show(self.status, self.alive, self.stats)
 
@@ -308,40 +382,85 @@ class QlapApp(App):
         self._control_pub.put(encode(Control(command, args)))  # type: ignore[arg-type]
         return True
 
+    def _intended(self, name: str, reported: Any) -> Any:
+        """The state the user last asked for (``paused``, ``speed``) until the agent's status
+        reports it (or :data:`PENDING_S` passes), else what the status reports."""
+        pending = self._pending.get(name)
+        if pending is None:
+            return reported
+        value, since = pending
+        if value == reported or time.monotonic() - since > PENDING_S:
+            del self._pending[name]
+            return reported
+        return value
+
+    def _finished(self, what: str) -> bool:
+        """True (and says so) when the run is finished: nothing pauses or steps it."""
+        if self.status is not None and self.status.finished:
+            self.notify(f"the run finished at step {steps_done(self.status.step)}: "
+                        f"{what}", severity="warning")
+            return True
+        return False
+
     def action_toggle_pause(self) -> None:
-        paused = self.status.paused if self.status else False
-        self.send("resume" if paused else "pause")
+        if self._finished("nothing to pause or resume"):
+            return
+        paused = self._intended("paused", self.status.paused if self.status else False)
+        if self.send("resume" if paused else "pause"):
+            self._pending["paused"] = (not paused, time.monotonic())
 
     def action_single_step(self) -> None:
-        self.send("step", n=1)
+        if self._finished("no more steps to take"):
+            return
+        if self.send("step", n=1):
+            self._pending["paused"] = (True, time.monotonic())
 
     def _speed_index(self) -> int:
-        speed = self.status.speed if self.status else 0.0
+        speed = self._intended("speed", self.status.speed if self.status else 0.0)
         if speed <= 0:
             return 0
         return min(range(1, len(SPEEDS)), key=lambda i: abs(SPEEDS[i] - speed))
 
+    def _set_speed(self, i: int) -> None:
+        if self.send("speed", steps_per_s=SPEEDS[i]):
+            self._pending["speed"] = (SPEEDS[i], time.monotonic())
+
     def action_faster(self) -> None:
-        i = self._speed_index()
-        self.send("speed", steps_per_s=SPEEDS[max(0, i - 1)])
+        self._set_speed(max(0, self._speed_index() - 1))
 
     def action_slower(self) -> None:
-        i = self._speed_index()
-        self.send("speed", steps_per_s=SPEEDS[min(len(SPEEDS) - 1, i + 1)])
+        self._set_speed(min(len(SPEEDS) - 1, self._speed_index() + 1))
 
     def action_checkpoint(self) -> None:
         if self.send("save"):
             self.notify("checkpoint requested")
 
+    def suggested_goal(self) -> tuple[ActionInfo | None, str]:
+        """The action the goal dialog starts with, and why: the selected one once the user
+        has chosen it, else the most reliable action that has a plan (rel(a), then calls)."""
+        k = self.knowledge
+        if k is None:
+            return None, ""
+        goals = [a for a in k.actions if a.variable in k.values and 0 <= a.index
+                 < len(k.values[a.variable])]
+        panel = self._panel(ActionsPanel)
+        if not panel.follow_top:
+            chosen = next((a for a in goals if a.label == panel.selected), None)
+            if chosen is not None:
+                return chosen, "the selected action"
+        if not goals:
+            return None, ""
+        best = max(goals, key=lambda a: (bool(a.plans), a.rel, a.calls))
+        return best, "the most reliable action"
+
     def action_goal(self) -> None:
         if self.knowledge is None:
             self.notify("no knowledge yet", severity="warning")
             return
-        suggested = []
-        selected = self._panel(ActionsPanel).selected
-        for a in self.knowledge.actions:
-            if a.label == selected and a.variable in self.knowledge.values:
-                suggested.append((a.variable, a.value))
+        action, why = self.suggested_goal()
+        suggested = [(action.variable, action.value)] if action else []
+        hint = (f"pre-filled with {why}: {action.label}, rel(a) {action.rel:.2f}"
+                if action else "")
 
         def done(choice: Any) -> None:
             if choice is False:
@@ -351,7 +470,7 @@ class QlapApp(App):
             else:
                 self.send("goal", var=choice[0], value=choice[1])
 
-        self.push_screen(GoalScreen(dict(self.knowledge.values), suggested), done)
+        self.push_screen(GoalScreen(dict(self.knowledge.values), suggested, hint), done)
 
     def action_help(self) -> None:
         self.push_screen(HelpScreen())

@@ -1,8 +1,11 @@
 """Record the telemetry the snapshot test feeds to the UI (``python -m tests.tui.record_fixture``).
 
-core2d, seed 0, the fast parameters of conftest.FAST, 7,000 steps: a knowledge snapshot every
-500 steps (the counters' sparklines), then the last 12 IAC choices, the call list, the world and
-a status with fixed rates and times, so the screen is the same on every machine.
+core2d, seed 0, the fast parameters of conftest.FAST, 12,000 steps (long enough for several
+actions to have the 2θ = 50 calls of eq. 6.1, so the IAC panel shows learning progress): a
+knowledge snapshot every 1,000 steps (the counters' and the progress sparklines), then the last 16
+IAC choices, the call list, the world and a status with fixed rates and times, so the screen is
+the same on every machine. The telemetry is today's (``qlap_runtime.telemetry``): re-record after
+changing what it publishes.
 """
 
 from __future__ import annotations
@@ -14,11 +17,11 @@ from qlap_runtime import telemetry
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.schema import encode
 
-FIXTURE = Path(__file__).parent / "fixtures" / "core2d-seed0-7000.jsonl"
+FIXTURE = Path(__file__).parent / "fixtures" / "core2d-seed0-12000.jsonl"
 RUN = "snap"
 
 
-def record(path: Path = FIXTURE, steps: int = 7000) -> Path:
+def record(path: Path = FIXTURE, steps: int = 12000) -> Path:
     import worlds
     from qlap_runtime.qlap.agent import Agent
     from tests.tui.conftest import FAST
@@ -34,9 +37,9 @@ def record(path: Path = FIXTURE, steps: int = 7000) -> Path:
 
     for t in range(steps):
         obs = world.step(agent.step(t, obs))
-        if (t + 1) % 500 == 0:
+        if (t + 1) % 1000 == 0:
             put("knowledge", telemetry.knowledge_msg(agent))
-    for m in telemetry.iac_msgs(agent, -1)[-12:]:
+    for m in telemetry.iac_msgs(agent, -1)[-16:]:
         put("iac", m)
     put("calllist", telemetry.call_list_msg(agent))
     put("world", telemetry.world_msg(agent, world))

@@ -15,7 +15,7 @@ import pytest
 from qlap_runtime.bus import keys
 from tests.tui.conftest import make_driver
 from tui import QlapApp
-from tui.widgets import ActionsPanel, GoalScreen, PlansPanel
+from tui.widgets import ActionsPanel, GoalScreen, PlansPanel, RuntimePanel, WorldPanel
 
 SIZE = (160, 50)
 
@@ -36,9 +36,12 @@ async def until(pilot, predicate, within: float = 60.0) -> None:
 
 
 async def select(pilot, panel: ActionsPanel, label: str) -> None:
-    """Put the cursor on ``label``'s row (rows move as the snapshot re-sorts them)."""
+    """Put the cursor on ``label``'s row as the user would (rows move as the snapshot re-sorts
+    them; a row chosen by the user is followed)."""
     panel.table.focus()
-    panel.table.move_cursor(row=panel.table.get_row_index(label), animate=False)
+    row = panel.table.get_row_index(label)
+    panel.table.move_cursor(row=row, animate=False)
+    panel.user_moved(row)
     await until(pilot, lambda: panel.selected == label)
     await pilot.pause(0.1)
 
@@ -56,7 +59,8 @@ def test_actions_appear_and_selecting_one_shows_its_plans(driver):
             await until(pilot, lambda: panel.table.row_count > 0)
             with_plans = [a.label for a in app.knowledge.actions if a.plans]
             await select(pilot, panel, with_plans[0])
-            await pilot.press("down", "up")                   # the keys move the selection
+            keys = ("up", "down") if panel.table.cursor_row else ("down", "up")
+            await pilot.press(*keys)                          # the keys move the selection
             await until(pilot, lambda: panel.selected == with_plans[0])
             plans = app.query_one(PlansPanel)
             assert plans.action is not None and plans.action.label == panel.selected
@@ -104,10 +108,21 @@ def test_speed_checkpoint_and_help(driver, tmp_path):
             await until(pilot, lambda: app.status.speed == 300.0)
             await pilot.press("plus", "plus")
             await until(pilot, lambda: app.status.speed == 0.0 and app.status.clock == "free")
+            await pilot.press("minus", "minus", "minus")        # quick presses: none is lost
+            await until(pilot, lambda: app.status.speed == 100.0)
+            await pilot.press("plus", "plus", "plus")
+            await until(pilot, lambda: app.status.speed == 0.0)
+            await pilot.press("p")
+            await until(pilot, lambda: app.status.paused)
+            await pilot.pause(0.3)
             await pilot.press("c")
             await until(pilot, lambda: app.status.message.startswith("saved "))
             saved = app.status.message.removeprefix("saved ")
             assert (driver.checkpoint_dir / saved.rsplit("/", 1)[-1]).is_dir()
+            # The checkpoint is named by the step on the screen.
+            assert saved.endswith(f"step-{app.status.step + 1:07d}")
+            assert f"step {app.status.step + 1}" in str(app.query_one(RuntimePanel).render())
+            await pilot.press("p")
             await pilot.press("question_mark")
             assert app.screen.__class__.__name__ == "HelpScreen"
             await pilot.press("escape")
@@ -142,6 +157,34 @@ def test_goal_dialog_sets_and_clears_a_goal(driver):
             await pilot.press("p")
             await until(pilot, lambda: not app.status.paused)
     asyncio.run(main())
+
+
+def test_a_finished_run_shows_finished_stops_its_clock_and_takes_no_more_steps():
+    d = make_driver(run_id="finish-test", steps=300)
+    d.start()
+
+    async def main():
+        app = QlapApp(driver=d)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.status is not None and app.status.finished)
+            assert app.status.step + 1 == d.agent.step_count + 1 == 300
+            wall = app.status.wall_s
+            await pilot.press("p")                 # the UI says so and sends nothing
+            await pilot.press("s")
+            await pilot.pause(0.5)
+            d.command("pause")                     # another viewer's pause: ignored too
+            d.command("step", n=1)
+            await until(pilot, lambda: "ignored" in app.status.message)
+            await pilot.pause(1.2)                 # the status goes out again, clock stopped
+            assert app.status.finished and not app.status.paused
+            assert d.agent.step_count + 1 == 300 and app.status.wall_s == wall
+            assert "FINISHED  step 300" in str(app.query_one(RuntimePanel).render())
+            assert app.query_one(WorldPanel).border_title.endswith("step 300")
+            assert app.world.text.startswith("core2d t=300 ")     # the world's own clock
+            await pilot.press("q")
+
+    asyncio.run(main())
+    assert not d.alive
 
 
 def test_quit_closes_everything_and_stops_an_owned_driver():

@@ -1,5 +1,9 @@
-"""Snapshot of the main screen fed a recorded run (tests/tui/record_fixture.py) over a real
-embedded Zenoh session: deterministic content, so the SVG is stable.
+"""Snapshots of the screen fed a recorded run (tests/tui/record_fixture.py) over a real
+embedded Zenoh session: deterministic content, so the SVGs are stable.
+
+At 160×48 every panel shows (the wide layout); at 80×24 the compact layout shows the actions
+and one other panel (Plans by default, then IAC and World, picked with the digit keys). The
+cursor is left where the UI puts it: on the top row, the most reliable action.
 
 Update after an intended change: ``pytest tests/tui/test_snapshot.py --snapshot-update``.
 """
@@ -9,6 +13,7 @@ from __future__ import annotations
 import json
 import time
 
+import pytest
 import zenoh
 
 from qlap_runtime.bus.config import embedded_config
@@ -17,8 +22,9 @@ from tui import QlapApp
 from tui.widgets import ActionsPanel
 
 
-def feed(session: zenoh.Session):
-    """A ``run_before`` that publishes the recording, one knowledge snapshot per UI refresh."""
+def feed(session: zenoh.Session, keys: tuple[str, ...] = ()):
+    """A ``run_before`` that publishes the recording, one knowledge snapshot per UI refresh,
+    then presses ``keys``."""
     records = [json.loads(line) for line in FIXTURE.read_text(encoding="utf-8").splitlines()]
 
     async def run_before(pilot) -> None:
@@ -32,18 +38,26 @@ def feed(session: zenoh.Session):
                     assert time.monotonic() < deadline
                     await pilot.pause(0.02)
         deadline = time.monotonic() + 10
-        while app.status is None or app.world is None or app.calllist is None:
+        while (app.status is None or app.world is None or app.calllist is None
+               or app.iac_seen < 16):
             assert time.monotonic() < deadline
             await pilot.pause(0.02)
         panel = app.query_one(ActionsPanel)
-        label = next(a.label for a in app.knowledge.actions if a.plans)
         panel.table.focus()
-        panel.table.move_cursor(row=panel.table.get_row_index(label), animate=False)
+        assert panel.follow_top and panel.table.cursor_row == 0
+        for key in keys:
+            await pilot.press(key)
         await pilot.pause(0.2)
     return run_before
 
 
-def test_main_screen(snap_compare):
+@pytest.mark.parametrize(("size", "keys"), [
+    pytest.param((160, 48), (), id="160x48"),
+    pytest.param((80, 24), (), id="80x24-plans"),
+    pytest.param((80, 24), ("2",), id="80x24-iac"),
+    pytest.param((80, 24), ("3",), id="80x24-world"),
+])
+def test_main_screen(snap_compare, size, keys):
     with zenoh.open(embedded_config()) as session:
         app = QlapApp(session, run_id=RUN)
-        assert snap_compare(app, terminal_size=(160, 50), run_before=feed(session))
+        assert snap_compare(app, terminal_size=size, run_before=feed(session, keys))

@@ -80,3 +80,43 @@ def test_cadence_limits_display_rate_and_sends_knowledge_on_change():
     assert c.knowledge_due(3.0, 270, (2,))                    # paused: every 2 s
     assert (telemetry.pretty("⟨{}: u_x→(0.3, +inf) ⇒ h_x.dot→[+]⟩")
             == "⟨{}: u_x→(0.3, +∞) ⇒ h\u0307_x→[+]⟩")
+
+
+def test_pretty_writes_infinity_and_zero_one_way():
+    assert telemetry.pretty("(-inf, -0)") == "(−∞, 0)"
+    assert telemetry.pretty("a(u_x, -0)") == "a(u_x, 0)"
+    assert telemetry.pretty("[-0.05, 0.05]") == "[-0.05, 0.05]"        # not a zero
+    assert telemetry.pretty("(1e-05, -0.5)") == "(1e-05, -0.5)"
+    assert telemetry.pretty("-0.000") == "0.000"
+
+
+def test_the_world_view_holds_one_step_and_the_status_counts_from_minus_one():
+    """Raw values, the motor command that led to them and the qualitative values agree: they
+    are what the agent perceives at its next step (a copy of it takes that step)."""
+    import copy
+
+    import worlds
+
+    world = worlds.make("core2d")
+    agent = Agent(world.variables, FAST, seed=0)
+    obs = world.reset(seed=0)
+    assert telemetry.status_msg(agent, steps_per_s=0.0, paused=False).step == -1
+    checked = 0
+    for t in range(3000):
+        obs = world.step(agent.step(t, obs, discontinuity=bool(world.discontinuity)))
+        if t % 250 != 249:
+            continue
+        w = telemetry.world_msg(agent, world)
+        assert w.step == agent.step_count == t and w.text.startswith(f"core2d t={t + 1} ")
+        assert w.motor == agent.motor and w.values == dict(world.observation)
+        twin = copy.deepcopy(agent)
+        twin.step(t + 1, dict(obs), discontinuity=bool(world.discontinuity))
+        p = twin._last_percept
+        seen = {v.name: twin.learner.value_label(v.index, int(p.q[v.index]))
+                for v in twin.table if p.q[v.index] >= 0}
+        assert w.qualitative == seen
+        for name, value in w.motor.items():          # motor rows: raw and qualitative agree
+            space = agent.learner.perception.spaces[agent.table.index(name)]
+            assert w.qualitative[name] == space.label(space.value_of(value))
+        checked += 1
+    assert checked == 12

@@ -9,7 +9,9 @@ from .iac import IACPanel
 from .landmarks import LandmarksPanel
 from .plans import PlansPanel
 from .runtime import RuntimePanel
+from .statusbar import StatusBar, ViewTabs
 from .world import WorldPanel
 
 __all__ = ["ActionsPanel", "CallListPanel", "CountersPanel", "GoalScreen", "HelpScreen",
-           "IACPanel", "LandmarksPanel", "PlansPanel", "RuntimePanel", "WorldPanel"]
+           "IACPanel", "LandmarksPanel", "PlansPanel", "RuntimePanel", "StatusBar", "ViewTabs",
+           "WorldPanel"]

@@ -7,6 +7,8 @@ from textual.widgets import Static
 
 from qlap_runtime.bus.schema import CallList
 
+from ._format import label, signed
+
 
 class CallListPanel(Static):
     """The executor's call list, outermost first, each sub-action indented under its parent."""
@@ -37,6 +39,7 @@ class CallListPanel(Static):
         if not self.actions:
             lines.append("[dim](empty: babbling, holding or idle)[/]")
         if self.motor:
-            lines.append("[dim]motor: " + "  ".join(f"{k}={v:+.2f}" for k, v in
-                                                    self.motor.items()) + "[/]")
+            lines.append("[dim]motor: " + "  ".join(
+                f"{escape(label(k))}={signed(v)}"
+                for k, v in self.motor.items()) + "[/]")
         self.update("\n".join(lines))

@@ -49,4 +49,4 @@ class CountersPanel(Vertical):
             self.query_one(f"#spark-{key}", Sparkline).data = list(self.history[key]) or [0.0]
         self.query_one("#counters-practice", Label).update(
             f"practice {c.practice_calls}  ✓{c.successes} ✗{c.failures}  "
-            f"babble cmds {c.babble_commands}  k={k.k}")
+            f"babble {c.babble_commands}  k={k.k}")

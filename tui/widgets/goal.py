@@ -10,6 +10,8 @@ from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
 from textual.widgets import Button, Label, Select
 
+from ._format import label
+
 GoalChoice = tuple[str, str] | None
 """(variable, value label) to set a goal, None to clear it; the dialog returns ``False`` when
 cancelled."""
@@ -21,8 +23,9 @@ class GoalScreen(ModalScreen[GoalChoice | bool]):
     SCOPED_CSS = False  # the rules below name the screen itself
     DEFAULT_CSS = """
     GoalScreen { align: center middle; }
-    GoalScreen > Vertical { width: 64; height: auto; border: thick $accent; padding: 1 2;
-                            background: $surface; }
+    GoalScreen > Vertical { width: 64; max-width: 100%; height: auto; max-height: 100%;
+                            border: thick $accent; padding: 1 2; background: $surface; }
+    GoalScreen #goal-hint { width: 100%; color: $text-muted; margin-bottom: 1; }
     GoalScreen Select { margin-bottom: 1; }
     GoalScreen Horizontal { height: auto; }
     GoalScreen Button { margin-right: 1; }
@@ -30,17 +33,20 @@ class GoalScreen(ModalScreen[GoalChoice | bool]):
     BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "cancel", "Cancel")]
 
     def __init__(self, values: dict[str, tuple[str, ...]], suggested: list[tuple[str, str]]
-                 | None = None) -> None:
+                 | None = None, hint: str = "") -> None:
         super().__init__()
         self.values = values
         self.suggested = suggested or []
+        self.hint = hint
 
     def compose(self) -> ComposeResult:
         first = self.suggested[0] if self.suggested else None
         with Vertical():
             yield Label("Give the agent a goal: a(variable, value)")
-            yield Select([(v, v) for v in self.values], prompt="variable", id="goal-var",
-                         value=first[0] if first else Select.NULL)
+            if self.hint:
+                yield Label(self.hint, id="goal-hint", markup=False)
+            yield Select([(label(v), v) for v in self.values], prompt="variable",
+                         id="goal-var", value=first[0] if first else Select.NULL)
             yield Select(self._value_options(first[0] if first else None), prompt="value",
                          id="goal-value", value=first[1] if first else Select.NULL)
             with Horizontal():
@@ -49,7 +55,7 @@ class GoalScreen(ModalScreen[GoalChoice | bool]):
                 yield Button("Cancel", id="goal-cancel")
 
     def _value_options(self, var: str | None) -> list[tuple[str, str]]:
-        return [(q, q) for q in self.values.get(var or "", ())]
+        return [(label(q), q) for q in self.values.get(var or "", ())]
 
     def on_select_changed(self, event: Select.Changed) -> None:
         if event.select.id == "goal-var":

@@ -7,6 +7,8 @@ from textual.widgets import Static
 
 from qlap_runtime.bus.schema import Knowledge
 
+from ._format import label
+
 
 class LandmarksPanel(Static):
     """Learned landmarks per magnitude/motor variable; ★ marks the most recently adopted."""
@@ -33,11 +35,12 @@ class LandmarksPanel(Static):
             learned = [lm for lm in lms if lm.source != "initial"]
             if not learned:
                 continue
-            parts = [(f"[b yellow]★{escape(lm.label)}[/]" if (var, lm.label) == newest
-                      else escape(lm.label))
+            parts = [(f"[b yellow]★{escape(label(lm.label))}[/]" if (var, lm.label) == newest
+                      else escape(label(lm.label)))
                      for lm in learned]
-            lines.append(f"[b]{var:>5}[/] " + ", ".join(parts))
+            lines.append(f"[b]{escape(label(var)):>5}[/] " + ", ".join(parts))
         if newest:
-            lines.append(f"[dim]★ newest: {newest[0]} {escape(newest[1])} at step {newest_step}[/]")
+            lines.append(f"[dim]★ newest: {escape(label(newest[0]))} "
+                         f"{escape(label(newest[1]))} at step {newest_step}[/]")
         self.update("\n".join(lines) if lines else "(no landmark learned yet)")
         self.border_title = f"Landmarks ({k.counters.landmarks} learned)"

@@ -7,6 +7,8 @@ from textual.widgets import Static
 
 from qlap_runtime.bus.schema import AgentStatus, Stats
 
+from ._format import steps_done
+
 
 class RuntimePanel(Static):
     """The running agent's status and the actors alive (liveliness tokens)."""
@@ -36,15 +38,13 @@ class RuntimePanel(Static):
         if s is None:
             self.update(f"run {self.run_id or '?'} via {self.connection}\n(waiting for the agent)")
             return
-        state = ("[b red]PAUSED[/]" if s.paused else "[b yellow]FINISHED[/]" if s.finished
-                 else "[b green]RUNNING[/]")
         speed = f"{s.speed:g}/s" if s.speed > 0 else "free"
         late = sum(x.late_ticks for x in self.stats.values()) or s.late_ticks
         missed = sum(x.missed_ticks for x in self.stats.values()) or s.missed_ticks
         rejected = sum(x.rejected.total for x in self.stats.values())
         lines = [
-            f"{state}  step [b]{s.step}[/]  {s.steps_per_s:,.0f} steps/s",
-            f"mode {s.mode}{'  goal ' + escape(s.goal) if s.goal else ''}"
+            f"{state_markup(s)}  step [b]{steps_done(s.step)}[/]  {s.steps_per_s:,.0f} steps/s",
+            f"mode {s.mode}  goal {escape(s.goal) if s.goal else '—'}"
             f"{'' if s.learning else '  (learning off)'}",
             f"clock {s.clock} ({speed})  placement {s.placement}",
             f"world {s.world}  seed {s.seed}  run {self.run_id}",
@@ -56,3 +56,14 @@ class RuntimePanel(Static):
         if s.message:
             lines.append(f"[i]{escape(s.message)}[/]")
         self.update("\n".join(lines))
+
+
+def state_word(s: AgentStatus) -> str:
+    """FINISHED (the last step is done; nothing pauses or steps it), PAUSED or RUNNING."""
+    return "FINISHED" if s.finished else "PAUSED" if s.paused else "RUNNING"
+
+
+def state_markup(s: AgentStatus) -> str:
+    word = state_word(s)
+    colour = {"FINISHED": "yellow", "PAUSED": "red", "RUNNING": "green"}[word]
+    return f"[b {colour}]{word}[/]"
