@@ -1,4 +1,4 @@
-"""The world actor: steps the physics in lockstep with the executor (DESIGN.md §3.3).
+"""The world actor: steps the physics in lockstep with the executor (docs/architecture.md §1).
 
 Publishes ``sense(t)`` — the world's observation at t plus the motor values being applied
 (those of ``motor(t − 1)``) — then waits for ``motor(t)``, applies it and steps. It keeps its

@@ -3,7 +3,7 @@
 
 Runs the agent in a world (default: core) and prints agent steps per second overall, during
 motor babbling and during practice (IAC, plans, call list), the time spent in batches, and what
-was learned. Budget (DESIGN.md §8): ≥ 2,000 steps/s overall on core; aim for 5,000.
+was learned. Budget (docs/architecture.md §4): ≥ 2,000 steps/s overall on core; aim for 5,000.
 
 Usage: scripts/bench_agent.py [--world core] [--steps 30000] [--babble-steps 20000] [--seed 0]
 """

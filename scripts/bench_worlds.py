@@ -3,7 +3,7 @@
 
 Physics substeps included; the random motor values are drawn beforehand so that only the
 world's ``step`` is timed. Usage: ``python scripts/bench_worlds.py [--steps N] [SPEC ...]``.
-Target (DESIGN.md §8, issue 4): at least 10,000 agent steps/s for ``core``.
+Target (docs/architecture.md §4): at least 10,000 agent steps/s for ``core``.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The algorithm is a library with no I/O (DESIGN.md §3 rule 1)."""
+"""The algorithm is a library with no I/O (docs/architecture.md §1 rule 1)."""
 
 import subprocess
 import sys

@@ -74,7 +74,7 @@ def _set(cfg: zenoh.Config, option: str, value: Any) -> None:
 def _base(mode: str) -> zenoh.Config:
     cfg = zenoh.Config()
     _set(cfg, "mode", mode)
-    # DESIGN.md §5: the default config joins multicast scouting and listens everywhere.
+    # docs/architecture.md §3: the default config joins multicast scouting and listens everywhere.
     _set(cfg, "scouting/multicast/enabled", False)
     _set(cfg, "scouting/gossip/enabled", False)
     _set(cfg, "listen/endpoints", [])

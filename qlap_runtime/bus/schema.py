@@ -124,7 +124,7 @@ DeltaKind = Literal["dbn", "landmarks", "plans"]
 
 @dataclass(frozen=True)
 class DeltaMsg:
-    """A knowledge delta (DESIGN.md §3.2) on ``delta/dbn``, ``delta/landmarks`` or
+    """A knowledge delta (docs/architecture.md §1) on ``delta/dbn``, ``delta/landmarks`` or
     ``delta/plans``; the kind must match the topic."""
 
     kind: DeltaKind
@@ -201,7 +201,7 @@ class Stats:
     steps_per_s: float = 0.0
     """Steps per second over the last reporting interval."""
     waits: int = 0
-    """Lockstep: times the world waited for a delta that was late (DESIGN.md §4)."""
+    """Lockstep: times the world waited for a delta that was late (docs/architecture.md §2)."""
     late_ticks: int = 0
     """Realtime: ticks that started later than their deadline."""
     missed_ticks: int = 0
@@ -405,7 +405,7 @@ class AgentStatus:
     learning: bool = True
     """Whether the agent learns."""
     pending_deltas: int = 0
-    """Knowledge deltas computed but not yet applied (batch lag, DESIGN.md §4)."""
+    """Knowledge deltas computed but not yet applied (batch lag, docs/architecture.md §2)."""
     late_ticks: int = 0
     """Realtime: ticks that started later than their deadline."""
     missed_ticks: int = 0

@@ -1,7 +1,7 @@
 """The QLAP algorithm: pure, synchronous and deterministic (no I/O, no zenoh/trio/textual/physics).
 
 Reference: J. Mugan, *Autonomous Qualitative Learning of Distinctions and Actions in a Developing
-Agent* (the dissertation in ``shared/reference``); each module cites the sections it implements.
+Agent*, PhD dissertation, UT Austin, 2010; each module cites the sections it implements.
 """
 
 from .delta import Delta as Delta

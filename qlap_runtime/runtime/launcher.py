@@ -15,6 +15,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -71,7 +72,8 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
 
         async with trio.open_nursery() as outer:
             if record is not None:
-                await outer.start(record_bus, session, ctx.run_id, record, stop)
+                await outer.start(partial(record_bus, info=ctx.to_json()), session,
+                                  ctx.run_id, record, stop)
             for watcher in watchers:
                 outer.start_soon(watcher, session, ctx, stop)
             async with trio.open_nursery() as nursery:
@@ -155,7 +157,7 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) ->
 def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, *,
                   record: Path | None = None,
                   on_poll: Callable[[Supervisor], None] | None = None) -> dict[str, Any]:
-    """One process per actor around a router opened here (DESIGN.md §4, processes); a dead
+    """One process per actor around a router opened here (docs/architecture.md §2, processes); a dead
     actor is restarted from its latest snapshot (:mod:`.supervisor`).
 
     ``record``: the router's session records every message of the run to an MCAP file (in a
@@ -187,7 +189,8 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
             tempfile.TemporaryDirectory(prefix="qlap-run-") as tmp:
         run_ctx = type(ctx).from_json(ctx.to_json())
         run_ctx.extra.setdefault("snapshot_dir", str(Path(tmp) / "snapshots"))
-        recorder = _Recorder(router, ctx.run_id, record) if record is not None else None
+        recorder = _Recorder(router, ctx.run_id, record, ctx.to_json()) \
+            if record is not None else None
         sup = Supervisor(run_ctx, endpoint, Path(tmp), ACTORS, _actor_process)
         try:
             sup.start_all()
@@ -208,8 +211,10 @@ class _Recorder:
     thread with its own trio run, so that the launcher's polling loop and its signal handling
     stay as they are. Subscribed when the constructor returns."""
 
-    def __init__(self, session: Any, run_id: str, path: Path) -> None:
+    def __init__(self, session: Any, run_id: str, path: Path,
+                 info: dict[str, Any] | None = None) -> None:
         self.session, self.run_id, self.path = session, run_id, Path(path)
+        self.info = info
         self.summary: Any = None
         self._ready = threading.Event()
         self._token: Any = None
@@ -235,7 +240,7 @@ class _Recorder:
 
         async def go(task_status=trio.TASK_STATUS_IGNORED) -> None:
             self.summary = await record(self.session, self.run_id, self.path, self._stop,
-                                        task_status=task_status)
+                                        info=self.info, task_status=task_status)
 
         async with trio.open_nursery() as nursery:
             await nursery.start(go)

@@ -8,6 +8,7 @@ more than any subscriber would (display topics are DROP: a slow terminal loses f
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import trio
@@ -43,6 +44,7 @@ async def watch_progress(session: Any, ctx: Any, stop: trio.Event, bar: Any = No
     task = bar.task_ids[0]
     start = int(ctx.extra.get("start_step", 0))
     counter = RejectionCounter("progress")
+    t0 = time.perf_counter()
     bar.start()
     try:
         with TrioSubscriber(session, keys.key(ctx.run_id, "status"), counter=counter) as st, \
@@ -58,7 +60,10 @@ async def watch_progress(session: Any, ctx: Any, stop: trio.Event, bar: Any = No
                 nursery.start_soon(follow, kn)
                 await stop.wait()
                 nursery.cancel_scope.cancel()
-        bar.update(task, completed=ctx.steps)
+        # The last frame: the whole run's rate, as summary.json has it (not the last instant's).
+        elapsed = time.perf_counter() - t0
+        bar.update(task, completed=ctx.steps,
+                   rate=f"{ctx.steps / elapsed:,.0f}" if elapsed > 0 else "-")
     finally:
         bar.stop()
 
@@ -68,4 +73,7 @@ def _show(bar: Any, task: Any, msg: Any, start: int) -> None:
         bar.update(task, completed=max(0, msg.step - start), rate=f"{msg.steps_per_s:,.0f}")
     elif isinstance(msg, Knowledge):
         c = msg.counters
-        bar.update(task, dbns=c.dbns, plans=c.plans, lms=c.landmarks)
+        # landmarks as summary.json and the metrics log count them: the initial ones included
+        # (the message's counter has the learned ones only)
+        bar.update(task, dbns=c.dbns, plans=c.plans,
+                   lms=sum(len(rows) for rows in msg.landmarks.values()))

@@ -1,4 +1,4 @@
-"""Faults (DESIGN.md §4, processes): an actor process SIGKILLed mid-run is restarted from its
+"""Faults (docs/architecture.md §2, processes): an actor process SIGKILLed mid-run is restarted from its
 latest snapshot by the supervisor and the run goes on, to the very knowledge of a run without
 the fault."""
 
