@@ -1,4 +1,5 @@
-"""Knowledge deltas: what one batch changed, as an ordered list of operations (docs/architecture.md §1).
+"""Knowledge deltas: what one batch changed, as an ordered list of operations
+(docs/architecture.md §1).
 
 A batch of Algorithm 2 (lines 6–13) is computed from the data up to step ``computed_at`` and
 applied at a step boundary ``apply_at`` = computed_at + L. Replaying the operations in order on

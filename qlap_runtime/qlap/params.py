@@ -100,7 +100,8 @@ class Params:
     landmark_period: int = 4000
     """Learn landmarks on events and on DBNs every this many steps (Alg. 2 lines 10–13)."""
     batch_lag: int = 0
-    """L: a batch from data up to step t is applied at t + L (docs/architecture.md §2; 0 = Algorithm 2)."""
+    """L: a batch from data up to step t is applied at t + L (docs/architecture.md §2;
+    0 = Algorithm 2)."""
     event_history: int = 20_000
     """Bound on the real-valued history kept for event landmarks (§8.3; bounded memory)."""
 

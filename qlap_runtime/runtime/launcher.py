@@ -157,8 +157,8 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) ->
 def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, *,
                   record: Path | None = None,
                   on_poll: Callable[[Supervisor], None] | None = None) -> dict[str, Any]:
-    """One process per actor around a router opened here (docs/architecture.md §2, processes); a dead
-    actor is restarted from its latest snapshot (:mod:`.supervisor`).
+    """One process per actor around a router opened here (docs/architecture.md §2, processes);
+    a dead actor is restarted from its latest snapshot (:mod:`.supervisor`).
 
     ``record``: the router's session records every message of the run to an MCAP file (in a
     thread of this process). ``on_poll(supervisor)`` is called at every poll (tests, tools).

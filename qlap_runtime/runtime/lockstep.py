@@ -1,4 +1,5 @@
-"""Lockstep bookkeeping: which knowledge deltas must be applied at which step (docs/architecture.md §2).
+"""Lockstep bookkeeping: which knowledge deltas must be applied at which step
+(docs/architecture.md §2).
 
 A batch of Algorithm 2 starts at every step t that is a positive multiple of
 ``Params.dbn_period`` (lines 6–9, by the contingency actor) and, when t is a multiple of
