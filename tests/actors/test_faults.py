@@ -1,6 +1,6 @@
 """Faults (docs/architecture.md §2, processes): an actor process SIGKILLed mid-run is restarted
-from its latest snapshot by the supervisor and the run goes on, to the very knowledge of a run without
-the fault."""
+from its latest snapshot by the supervisor and the run goes on, to the very knowledge of a run
+without the fault."""
 
 from __future__ import annotations
 
