@@ -3,10 +3,10 @@
 See docs/architecture.md §2 (processes). The launcher starts one ``spawn`` process per actor and
 polls them here. An actor that dies (any non-zero exit: a crash, SIGKILL, the OOM killer) is
 started again with ``ctx.extra["restarted"]`` and ``ctx.extra["resume_from"]`` = its latest
-snapshot (``snapshot.latest_snapshot``; none yet: from the start). The new process loads the snapshot, fetches from the writers' replay logs what it
-missed, catches up and continues live (docs/runtime.md, Faults). Because the lockstep clock makes
-each actor's state a function of its input stream, the run's knowledge is the one of a run
-without the fault.
+snapshot (``snapshot.latest_snapshot``; none yet: from the start). The new process loads the
+snapshot, fetches from the writers' replay logs what it missed, catches up and continues live
+(docs/runtime.md, Faults). Because the lockstep clock makes each actor's state a function of its
+input stream, the run's knowledge is the one of a run without the fault.
 
 Not restarted, and the run stops with :class:`ActorFailed` saying why: the world (its physics
 state is not snapshotted), any actor under the realtime clock (its state depends on arrival
