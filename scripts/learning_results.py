@@ -47,6 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="agent steps of each run (default: 250000)")
     p.add_argument("--trials", type=_positive, default=100,
                    help="evaluation trials per checkpoint and task, §7.2 (default: 100)")
+    p.add_argument("--at", type=int, nargs="+", default=[], metavar="STEP",
+                   help="checkpoint steps evaluated besides the multiples of --every (default: "
+                        "none; e.g. 20000 230000 240000 to judge the last three checkpoints "
+                        "against the end of babbling)")
     p.add_argument("--every", type=_non_negative, default=10_000, metavar="N",
                    help="evaluate the checkpoints whose step is a multiple of N, and each "
                         "run's last; 0: every checkpoint (default: 10000, the reference's "
@@ -71,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     script = Path(sys.argv[0]).as_posix() if argv is None else "scripts/learning_results.py"
     shown = [script, *(sys.argv[1:] if argv is None else argv)]
     cfg = ResultsConfig(world=args.world, seeds=list(args.seeds), steps=args.steps,
-                        trials=args.trials, every=args.every or None, jobs=args.jobs,
+                        trials=args.trials, every=args.every or None, at=args.at, jobs=args.jobs,
                         runs_dir=args.runs_dir, out=args.out, tasks=args.tasks, argv=shown)
     try:
         return build_results(cfg, echo=lambda s: print(s, flush=True))

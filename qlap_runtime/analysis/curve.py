@@ -291,9 +291,10 @@ def _collect(run_dirs: list[Path], labels: list[str],
     return checkpoints, specs.pop()
 
 
-def select_every(checkpoints: Sequence[Checkpoint], every: int | None) -> list[Checkpoint]:
-    """The checkpoints whose step is a multiple of ``every``, plus each run's last one (all of
-    them when ``every`` is None)."""
+def select_every(checkpoints: Sequence[Checkpoint], every: int | None,
+                 at: Sequence[int] = ()) -> list[Checkpoint]:
+    """The checkpoints whose step is a multiple of ``every`` or one of ``at``, plus each run's
+    last one (all of them when ``every`` is None)."""
     if every is None:
         return list(checkpoints)
     if every < 1:
@@ -301,7 +302,9 @@ def select_every(checkpoints: Sequence[Checkpoint], every: int | None) -> list[C
     last: dict[str, int] = {}
     for c in checkpoints:
         last[c.run] = max(last.get(c.run, c.step), c.step)
-    return [c for c in checkpoints if c.step % every == 0 or c.step == last[c.run]]
+    extra = set(at)
+    return [c for c in checkpoints
+            if c.step % every == 0 or c.step in extra or c.step == last[c.run]]
 
 
 def _run_pending(pending: list[tuple[Key, EvalJob, Checkpoint | None]], jobs: int,
@@ -343,11 +346,12 @@ def _run_pending(pending: list[tuple[Key, EvalJob, Checkpoint | None]], jobs: in
 
 def main_curve(run_dirs: Sequence[Path], task: str, trials: int = 100, jobs: int | None = None,
                seed: int = 0, out: Path | None = None, world: str | None = None,
-               echo: Callable[[str], None] = print, every: int | None = None) -> int:
+               echo: Callable[[str], None] = print, every: int | None = None,
+               at: Sequence[int] = ()) -> int:
     """``qlap curve``: evaluate, write curve.csv and curve.png, print progress and the table.
 
-    ``every``: evaluate only the checkpoints whose step is a multiple of it, plus each run's
-    last (:func:`select_every`); None: all of them.
+    ``every``: evaluate only the checkpoints whose step is a multiple of it or one of ``at``,
+    plus each run's last (:func:`select_every`); None: all of them.
 
     Returns 0, or 1 when an evaluation failed (the others are written). Raises
     :class:`AnalysisError` for unusable arguments.
@@ -361,7 +365,7 @@ def main_curve(run_dirs: Sequence[Path], task: str, trials: int = 100, jobs: int
     labels = run_labels(run_dirs)
     checkpoints, spec = _collect(run_dirs, labels, world)
     n_found = len(checkpoints)
-    checkpoints = select_every(checkpoints, every)
+    checkpoints = select_every(checkpoints, every, at)
     _check_task(spec, task)
 
     wanted: list[tuple[Key, EvalJob, Checkpoint | None]] = [

@@ -71,6 +71,9 @@ class ResultsConfig:
     steps: int = 250_000
     trials: int = 100
     every: int | None = 10_000
+    at: list[int] = field(default_factory=list)
+    """Steps evaluated besides the multiples of ``every`` (e.g. 20,000, the end of babbling, and
+    the last three checkpoints that the targets compare with it)."""
     jobs: int = 2
     runs_dir: Path = Path("runs/results")
     out: Path = Path("docs")
@@ -179,7 +182,7 @@ class TaskResult:
 
 
 def task_result(run_dirs: Sequence[Path], task: str, curve_dir: Path, trials: int,
-                every: int | None, eval_seed: int = 0) -> TaskResult:
+                every: int | None, eval_seed: int = 0, at: Sequence[int] = ()) -> TaskResult:
     """The curve of ``task`` over ``run_dirs`` as ``qlap curve … --out curve_dir`` left it in
     ``curve.csv``: the checkpoints ``--every`` selects, their mean and standard error across
     runs (:func:`.curve.aggregate`), and the random policy's row."""
@@ -187,7 +190,7 @@ def task_result(run_dirs: Sequence[Path], task: str, curve_dir: Path, trials: in
     checkpoints = [c for d, label in zip(run_dirs, labels, strict=True)
                    for c in find_checkpoints(d, label)]
     world = run_world(run_dirs[0], find_checkpoints(run_dirs[0], labels[0]), None)
-    wanted = {(c.run, c.step) for c in select_every(checkpoints, every)}
+    wanted = {(c.run, c.step) for c in select_every(checkpoints, every, at)}
     rows = [r for r in read_rows(Path(curve_dir) / "curve.csv")
             if (r.task, r.world, r.trials, r.seed) == (task, world, trials, eval_seed)]
     ours = [r for r in rows if r.policy == "qlap" and (r.run, r.step) in wanted]
@@ -432,7 +435,8 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
     full = shlex.join([
         "scripts/learning_results.py", "--world", cfg.world, "--seeds",
         *map(str, cfg.seeds), "--steps", str(cfg.steps), "--trials", str(cfg.trials),
-        "--every", str(cfg.every or 0), "--jobs", str(cfg.jobs), "--runs-dir",
+        "--every", str(cfg.every or 0), *(["--at", *map(str, cfg.at)] if cfg.at else []),
+        "--jobs", str(cfg.jobs), "--runs-dir",
         _shown(cfg.runs_dir), "--out", _shown(cfg.out), "--tasks",
         *[t.task for t in tasks]])
     protocol_ok = (_world_base(cfg.world) == PROTOCOL["world"] and cfg.steps == PROTOCOL["steps"]
@@ -594,9 +598,9 @@ def build_results(cfg: ResultsConfig, echo: Echo = print) -> int:
         curve_dir = Path(cfg.runs_dir) / f"curve-{task}"
         echo(f"\ncurve of {task} over {len(run_dirs)} seed(s) -> {curve_dir}")
         failures += main_curve(run_dirs, task, cfg.trials, cfg.jobs, cfg.eval_seed, curve_dir,
-                               cfg.world, echo=echo, every=cfg.every or None)
+                               cfg.world, echo=echo, every=cfg.every or None, at=cfg.at)
         results.append(task_result(run_dirs, task, curve_dir, cfg.trials, cfg.every or None,
-                                   cfg.eval_seed))
+                                   cfg.eval_seed, cfg.at))
 
     echo("\nknowledge (qlap report --json)")
     data = report_data(run_dirs)
