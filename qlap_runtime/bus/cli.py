@@ -51,12 +51,19 @@ def add_bus_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[t
 
     rec = sub.add_parser("record", help="record a running agent's bus to an MCAP file",
                          description="Subscribe to qlap/<run>/** and write every message to an "
-                                     "MCAP file (JSON with JSON Schemas; opens in Foxglove).")
+                                     "MCAP file that opens in Foxglove: topics /qlap/<topic> "
+                                     "(JSON with JSON Schemas), a qlap.run metadata record per "
+                                     "run, and the world's bodies on /qlap/scene "
+                                     "(foxglove.SceneUpdate) for the 3D panel.")
     _connection_args(rec)
     rec.add_argument("--out", type=Path, required=True, help="output .mcap file")
     rec.add_argument("--run", default=None, help="run id to record (default: every run)")
     rec.add_argument("--duration", type=float, default=None,
                      help="stop after this many seconds (default: until Ctrl-C)")
+    rec.add_argument("--scene-hz", type=float, default=30.0, metavar="HZ",
+                     help="scene updates on /qlap/scene per second, drawn from the sense "
+                          "messages (0: one per step; default: %(default)s)")
+    rec.add_argument("--no-scene", action="store_true", help="record no /qlap/scene")
 
     e = sub.add_parser("echo", help="print the messages on a key expression",
                        description="Print KEY JSON lines for every message on KEY "
@@ -135,10 +142,12 @@ async def _record(cfg: zenoh.Config, args: argparse.Namespace) -> int:
                 await trio.sleep(args.duration)
                 stop.set()
             nursery.start_soon(timer)
-        summary = await record(cfg, args.run, args.out, stop)
+        summary = await record(cfg, args.run, args.out, stop,
+                               scene_hz=None if args.no_scene else max(args.scene_hz, 0.0))
         nursery.cancel_scope.cancel()
-    print(f"qlap record: {summary.messages} messages on {len(summary.by_topic)} topics to "
-          f"{summary.path} ({summary.rejected} rejected)", file=sys.stderr)
+    print(f"qlap record: {summary.messages} messages on {len(summary.by_topic)} topics and "
+          f"{summary.scenes} scene updates of {len(summary.runs)} run(s) to {summary.path} "
+          f"({summary.rejected} rejected)", file=sys.stderr)
     return 0
 
 

@@ -53,7 +53,8 @@ def test_record_and_echo_subprocesses_exit_on_sigint(tmp_path):
                     p.kill()
                     p.wait()
     assert ech.returncode == 0
-    assert echo_out.splitlines()[0] == f'{key} {{"step":0,"values":{{"x":1.0}},"version":1}}'
+    assert echo_out.splitlines()[0] == (f'{key} {{"step":0,"values":{{"x":1.0}},'
+                                        '"discontinuity":false,"version":1}')
     assert len(echo_out.splitlines()) == 3
     assert rec.returncode == 0, rec_err
     assert "10 messages" in rec_err

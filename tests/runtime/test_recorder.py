@@ -9,9 +9,10 @@ import trio
 import zenoh
 from mcap.reader import make_reader
 
+import qlap_runtime
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher
-from qlap_runtime.bus.recorder import echo, read_mcap, record
+from qlap_runtime.bus.recorder import echo, read_mcap, read_metadata, record
 from qlap_runtime.bus.schema import Control, DeltaMsg, IACChoice, Motor, QState, Sense
 from qlap_runtime.qlap.delta import Delta
 
@@ -58,9 +59,19 @@ async def test_recorder_in_process_writes_what_was_published(embedded, run_id, t
     schemas = {s.name: s for s in summary_rec.schemas.values()}
     assert schemas["qlap.Sense"].encoding == "jsonschema"
     assert json.loads(schemas["qlap.Sense"].data)["title"] == "Sense"
+    # Stable topics: the run id is in the channel's metadata, not in the topic.
     channels = {c.topic: c for c in summary_rec.channels.values()}
-    assert channels[keys.key(run_id, "sense")].message_encoding == "json"
-    assert summary_rec.schemas[channels[keys.key(run_id, "motor")].schema_id].name == "qlap.Motor"
+    assert set(channels) == {f"/qlap/{t}" for t, _ in msgs}
+    assert channels["/qlap/sense"].message_encoding == "json"
+    assert channels["/qlap/sense"].metadata == {"run_id": run_id,
+                                                "key": keys.key(run_id, "sense")}
+    assert summary_rec.schemas[channels["/qlap/motor"].schema_id].name == "qlap.Motor"
+    # One metadata record; the world is unknown (no status message): no scene either.
+    [meta] = read_metadata(out)
+    assert meta["run_id"] == run_id and "world" not in meta
+    assert meta["software_version"] == qlap_runtime.__version__
+    assert int(meta["start_time_ns"]) == times[0]
+    assert summary.scenes == 0 and summary.runs == (run_id,)
 
 
 async def test_record_and_echo_over_loopback(router_endpoint, run_id, tmp_path):
@@ -85,7 +96,8 @@ async def test_record_and_echo_over_loopback(router_endpoint, run_id, tmp_path):
     assert [m.step for _, m, _ in back] == list(range(100))
     lines = printed.getvalue().splitlines()
     assert len(lines) == 100
-    assert lines[3] == f'qlap/{run_id}/sense {{"step":3,"values":{{"x":3.0}},"version":1}}'
+    assert lines[3] == (f'qlap/{run_id}/sense {{"step":3,"values":{{"x":3.0}},'
+                        '"discontinuity":false,"version":1}')
 
 
 def _summary(path):
@@ -106,3 +118,25 @@ async def _record_task(source, run_id, out, stop, box, *,
 
 async def _echo_task(endpoint, key, stop, printed, *, task_status=trio.TASK_STATUS_IGNORED):
     await echo(_client(endpoint), key, stop, out=printed, task_status=task_status)
+
+
+def test_read_mcap_reads_files_written_before_the_topics_were_stable(tmp_path):
+    from mcap.writer import Writer
+
+    from qlap_runtime.bus.schema import encode, json_schema
+
+    path = tmp_path / "old.mcap"
+    with open(path, "wb") as f:     # the old layout: the key expression as the topic
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema(name="qlap.Sense", encoding="jsonschema",
+                                data=json.dumps(json_schema(Sense)).encode())
+        cid = w.register_channel(topic="qlap/old-run/sense", message_encoding="json",
+                                 schema_id=sid)
+        for t in range(3):
+            w.add_message(channel_id=cid, log_time=t + 1, data=encode(Sense(t, {"x": 1.0})),
+                          publish_time=t + 1)
+        w.finish()
+    assert read_mcap(path) == [("qlap/old-run/sense", Sense(t, {"x": 1.0}), t + 1)
+                               for t in range(3)]
+    assert read_metadata(path) == []

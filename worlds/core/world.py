@@ -699,6 +699,50 @@ class CoreWorld(World):
         )
         return "\n".join([status[:width], *("".join(row) for row in grid)])
 
+    def scene(self, values: dict[str, float] | None = None) -> list[dict[str, Any]]:
+        """The bodies as boxes and spheres, for a 3D view (the recorder's foxglove.SceneUpdate).
+
+        Each body is ``{"id", "shape": "box" | "sphere", "centre": (x, y, z), "size": (sx, sy,
+        sz), "rgba": (r, g, b, a)}``, sizes being full extents, in a right-handed frame with z up:
+        MuJoCo's, whose x is the reference's −x (so the hand's centre is (−h_x, h_y, h_z)). The
+        table (its top and legs) comes from the variant's geometry; the hand (the 3 × 3 × 0.5
+        palm), the block (a cube of its current width) and the floating balls from ``values``, an
+        observation such as a recorded ``sense`` (default: the current observation): block
+        centre (h_x − c_x, h_y − c_y, h_z − 0.25 − z_BT − w/2), width w = x_LR − x_RL − 3. The
+        second block of ``secondary`` is not observable: it is drawn only without ``values``.
+        """
+
+        def body(name: str, centre: Any, size: Any, rgba: Any, shape: str = "box") -> dict:
+            return {"id": name, "shape": shape, "centre": centre, "size": size, "rgba": rgba}
+
+        obs = self.observation if values is None else values
+        x_right, x_left, y_near, y_far = self.table
+        half_x, half_y = (x_left - x_right) / 2, (y_far - y_near) / 2
+        tx, ty = -(x_left + x_right) / 2, (y_far + y_near) / 2
+        leg = TABLE_TOP - 2 * TABLE_HALF_Z
+        top = (tx, ty, TABLE_TOP - TABLE_HALF_Z)
+        bodies = [
+            body("table", top, (2 * half_x, 2 * half_y, 2 * TABLE_HALF_Z), (0.62, 0.45, 0.28, 1))
+        ]
+        for i, (sx, sy) in enumerate(((1, 1), (-1, 1), (1, -1), (-1, -1)), start=1):
+            centre = (tx + sx * (half_x - 0.4), ty + sy * (half_y - 0.4), leg / 2)
+            bodies.append(body(f"table_leg{i}", centre, (0.5, 0.5, leg), (0.45, 0.32, 0.20, 1)))
+        hx, hy, hz = obs["h_x"], obs["h_y"], obs["h_z"]
+        palm = (2 * HAND_HALF, 2 * HAND_HALF, 2 * HAND_HALF_Z)
+        bodies.append(body("hand", (-hx, hy, hz), palm, (0.95, 0.80, 0.25, 1)))
+        width = obs["x_LR"] - obs["x_RL"] - 2 * HAND_HALF
+        centre = (obs["c_x"] - hx, hy - obs["c_y"], hz - HAND_HALF_Z - obs["z_BT"] - width / 2)
+        bodies.append(body("block", centre, (width,) * 3, (0.85, 0.15, 0.15, 1)))
+        if self.secondary and values is None:
+            a = self._qadr_block2
+            centre = tuple(self.data.qpos[a : a + 3].tolist())
+            bodies.append(body("block2", centre, (self.width2,) * 3, (0.15, 0.55, 0.85, 1)))
+        for i, rgba in ((1, (0.90, 0.20, 0.60, 1)), (2, (0.30, 0.85, 0.35, 1))):
+            if f"f{i}_x" in obs:
+                centre = (-obs[f"f{i}_x"], obs[f"f{i}_y"], obs[f"f{i}_z"])
+                bodies.append(body(f"ball{i}", centre, (1.0, 1.0, 1.0), rgba, "sphere"))
+        return bodies
+
 
 def make_core(variant: str | None = None, option: str | None = None, **options: Any) -> CoreWorld:
     """Registry factory for ``core[:variant[:option]]``."""

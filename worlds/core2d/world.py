@@ -321,6 +321,44 @@ class Core2DWorld(World):
         status = f"core2d t={self.step_count} hand=({hx:.1f},{hy:.1f}) z_F={self.z_f:.1f}"
         return "\n".join([status[:width], *("".join(row) for row in grid)])
 
+    def scene(self, values: dict[str, float] | None = None) -> list[dict[str, Any]]:
+        """The bodies as boxes, for a 3D view (the recorder's foxglove.SceneUpdate), as
+        :meth:`worlds.core.world.CoreWorld.scene` gives them: ``{"id", "shape": "box", "centre",
+        "size", "rgba"}`` in MuJoCo's right-handed frame (x = the reference's −x, z up). The
+        table top is 10.5 above the floor; the hand, a 3 × 3 × 0.5 palm, at height 11 (its
+        lowest in ``core``, level with the block); the block, a cube of its current width,
+        from ``values`` (default: the current observation): centre (T_L + 4, T_T + 4), bottom
+        at z_F (10.5 on the table, lower while it falls), width x_LR − x_RL − 3.
+        """
+        obs = self.observation if values is None else values
+        x_right, x_left, y_near, y_far = TABLE
+        top = (-(x_left + x_right) / 2, (y_far + y_near) / 2, TABLE_TOP - 1.0)
+        width = obs["x_LR"] - obs["x_RL"] - 2 * HAND_HALF
+        bx, by = obs["T_L"] + x_left, obs["T_T"] + y_far
+        return [
+            {
+                "id": "table",
+                "shape": "box",
+                "centre": top,
+                "size": (x_left - x_right, y_far - y_near, 2.0),
+                "rgba": (0.62, 0.45, 0.28, 1),
+            },
+            {
+                "id": "hand",
+                "shape": "box",
+                "centre": (-obs["h_x"], obs["h_y"], 11.0),
+                "size": (2 * HAND_HALF, 2 * HAND_HALF, 0.5),
+                "rgba": (0.95, 0.80, 0.25, 1),
+            },
+            {
+                "id": "block",
+                "shape": "box",
+                "centre": (-bx, by, obs["z_F"] + width / 2),
+                "size": (width, width, width),
+                "rgba": (0.85, 0.15, 0.15, 1),
+            },
+        ]
+
 
 def make_core2d(
     variant: str | None = None, option: str | None = None, **options: Any
