@@ -23,7 +23,10 @@ from qlap_runtime.runtime.supervisor import Supervisor
 
 STEPS = 3000
 SNAPSHOT_EVERY = 500
-BASE = Params(babble_steps=1500, dbn_period=500, landmark_period=1000, batch_lag=200)
+# A short run that learns something to compare: batches every 500 steps, k fixed (Appendix C
+# needs more data than 3,000 steps give) and 15 data points instead of 30 (App. B.2).
+BASE = Params(babble_steps=1500, dbn_period=500, landmark_period=1000, batch_lag=200, k_fixed=5,
+              min_data_points=15)
 
 
 def sync_knowledge(params: Params, seed: int) -> str:
