@@ -23,8 +23,11 @@ def ops(learner, step: int) -> list:
 
 def test_a_replica_with_the_executors_context_computes_the_synchronous_batch(tmp_path):
     world = worlds.make("core2d")
+    # A short run that makes plans: batches every 500 steps, k fixed (Appendix C needs more
+    # data than 4,000 steps give) and 15 data points instead of 30 (App. B.2).
     params = params_for_world(world, Params(babble_steps=1500, dbn_period=500,
-                                            landmark_period=1000))
+                                            landmark_period=1000, k_fixed=5,
+                                            min_data_points=15))
     agent, _ = run_agent(world, 4000, 7, params=params)
     world.close()
     learner = agent.learner
