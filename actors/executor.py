@@ -5,7 +5,8 @@ DBN statistics that rel(r, s) needs from the ``qstate`` stream and applies the b
 deltas at step boundaries, but never learns DBNs or landmarks itself. Plan conversion (Algorithm
 2 line 15) runs here, right after the deltas are applied, because it reads the executor's own
 action and plan statistics (a departure from a separate planner actor, see docs/runtime.md).
-Writes checkpoints, ``knowledge.json`` and ``summary.json`` like the synchronous loop.
+Writes checkpoints (with the retention ``ctx.extra["keep_checkpoints"]``), the metrics log,
+``knowledge.json`` and ``summary.json`` like the synchronous loop.
 
 It obeys the UI's agent commands on ``control`` — ``goal`` and ``save`` — at a step boundary
 (between ``motor(t)`` and ``qstate(t + 1)``), and applies the clock commands the world obeys to
@@ -29,8 +30,15 @@ from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
 from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import Control, Motor
+from qlap_runtime.metrics import METRICS_EVERY, METRICS_FILE, MetricsLog
 from qlap_runtime.qlap.agent import Agent
-from qlap_runtime.qlap.checkpoint import atomic_write_json, load_agent, save_agent
+from qlap_runtime.qlap.checkpoint import (
+    atomic_write_json,
+    load_agent,
+    save_agent,
+    save_final_checkpoint,
+    save_step_checkpoint,
+)
 from qlap_runtime.runtime.lockstep import batch_kinds
 
 from .common import (
@@ -71,6 +79,13 @@ async def run(session, ctx: RunContext) -> dict:
     snapshot_s: list[float] = []
     t_start = time.perf_counter()
     steps_done = 0
+    keep = ctx.extra.get("keep_checkpoints")
+    keep = None if keep is None else int(keep)
+    metrics = MetricsLog(Path(ctx.out) / METRICS_FILE, agent, start=resume.step + 1,
+                         every=int(ctx.extra.get("metrics_every", METRICS_EVERY))) \
+        if ctx.out is not None else None
+    # The last periodic checkpoint: (agent step, agent commands applied by then, its path).
+    last_saved: tuple[int, int, Path | None] = (-1, -1, None)
     with declare_alive(session, ctx.run_id, NAME), \
             TrioSubscriber(session, keys.key(ctx.run_id, "qstate"), counter=counter) as sub, \
             Publisher(session, ctx.run_id, "motor") as pub, \
@@ -116,11 +131,15 @@ async def run(session, ctx: RunContext) -> dict:
                     pub.put(motor)
                     replay.append(t, motor)
                     steps_done += 1
+                    if metrics is not None:
+                        metrics.after_step(t + 1, agent)
                     if not msg.rejected:
                         display.publish(agent, deltas, commands.rc)
                         if ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
-                            save_agent(agent, Path(ctx.out) / "checkpoints" / f"step-{t + 1:07d}",
-                                       ctx.world)
+                            last_saved = (agent.step_count, commands.agent_changes,
+                                          save_step_checkpoint(agent, Path(ctx.out) /
+                                                               "checkpoints", t + 1,
+                                                               ctx.world, keep))
                     if snapshot_due(ctx, t):
                         snapshot_s.append(write_snapshot(ctx, NAME, t, deltas,
                                                          lambda d: save_agent(agent, d),
@@ -133,6 +152,8 @@ async def run(session, ctx: RunContext) -> dict:
             display.publish(agent, deltas, commands.rc, force=True)
         finally:
             deltas.close()
+            if metrics is not None:
+                metrics.finish(resume.step + 1 + steps_done, agent)
     wall = time.perf_counter() - t_start
     result = {"rejected": counter.snapshot().total, "waits": deltas.book.waits,
               "wait_s": round(deltas.wait_s, 3), "rejected_observations": len(rejected),
@@ -143,7 +164,11 @@ async def run(session, ctx: RunContext) -> dict:
     if ctx.out is not None:
         out = Path(ctx.out)
         atomic_write_json(out / "knowledge.json", agent.knowledge())
-        save_agent(agent, out / "checkpoints" / "final", ctx.world)
+        # final links to the last step-N when nothing changed the agent since (no step, no
+        # goal command): the same state, not a copy.
+        same = last_saved[2] if last_saved[:2] == (agent.step_count,
+                                                   commands.agent_changes) else None
+        save_final_checkpoint(agent, out / "checkpoints", ctx.world, same_as=same)
         from qlap_runtime.agent_run import summary_of
 
         summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed,
@@ -169,6 +194,9 @@ class Commands:
         hz = float(ctx.extra.get("hz", 100.0)) if ctx.realtime else 0.0
         self.rc = RunControl(speed=hz, default_speed=hz)
         self.at_boundary = False
+        self.agent_changes = 0
+        """Commands applied that change the agent (goal): a checkpoint taken before one is no
+        longer the agent's state."""
         self._tmp_checkpoints: Path | None = None
 
     def apply(self) -> bool:
@@ -200,6 +228,7 @@ class Commands:
     def _agent_command(self, c: Control) -> None:
         a = c.args
         if c.command == "goal":
+            self.agent_changes += 1
             self.rc.message = self._goal(a)
         elif c.command == "save":
             path = a.get("path")
@@ -208,7 +237,7 @@ class Commands:
             target = Path(path) if path else \
                 self._checkpoints() / f"step-{max(self.agent.step_count + 1, 0):07d}"
             try:
-                save_agent(self.agent, target)
+                save_agent(self.agent, target, self.ctx.world)
                 self.rc.message = f"saved {target}"
             except Exception as e:                  # a bad path must not stop the run
                 log.warning("save to %s failed: %s", target, e)

@@ -1,9 +1,9 @@
 """Headless runs of the synchronous agent (Algorithm 2) in a world, and evaluation trials.
 
 ``run_agent`` is the main job: an agent learning autonomously in a world for N steps, with
-checkpoints every 10,000 steps (§7.2), ``knowledge.json`` and ``summary.json`` (schemas in
-docs/outputs.md). ``evaluate`` runs the §7.2 protocol on a checkpoint: goal mode, learning off,
-−0.01 a step, +9.99 on success, 300 steps.
+checkpoints every 10,000 steps (§7.2), a metrics log every 1,000 steps, ``knowledge.json`` and
+``summary.json`` (schemas in docs/outputs.md). ``evaluate`` runs the §7.2 protocol on a
+checkpoint: goal mode, learning off, −0.01 a step, +9.99 on success, 300 steps.
 """
 
 from __future__ import annotations
@@ -17,9 +17,15 @@ from typing import Any
 
 import numpy as np
 
+from .metrics import METRICS_EVERY, METRICS_FILE, MetricsLog, knowledge_counts
 from .qlap import Params
 from .qlap.agent import Agent
-from .qlap.checkpoint import atomic_write_json, load_agent, save_agent
+from .qlap.checkpoint import (
+    atomic_write_json,
+    load_agent,
+    save_final_checkpoint,
+    save_step_checkpoint,
+)
 from .qlap.perception import InvalidObservation
 
 ProgressFn = Callable[[int, Agent], None]
@@ -44,18 +50,17 @@ def params_for_world(world: Any, base: Params | None = None) -> Params:
 
 def summary_of(agent: Agent, world: Any, seed: int, steps: int, wall: float,
                rejected: list[str]) -> dict[str, Any]:
-    k = agent.learner.knowledge()
-    reliable = sum(1 for key, st in agent.actions.items()
-                   if st.reliable and agent.table[key[0]].kind.value != "motor")
+    """summary.json's figures of a run (docs/outputs.md); the counts are those of the metrics
+    log (:func:`~qlap_runtime.metrics.knowledge_counts`), so the two agree."""
+    n = knowledge_counts(agent)
     c = agent.counters
     return {
         "world": getattr(world, "name", type(world).__name__), "seed": seed, "steps": steps,
         "wall_time_s": round(wall, 3), "steps_per_s": round(steps / wall, 1) if wall else None,
-        "k": agent.learner.k, "dbns": len(k["dbns"]),
-        "reliable_dbns": sum(d["sufficiently_reliable"] for d in k["dbns"]),
-        "plans": len(agent.plans),
-        "landmarks": sum(len(v) for v in k["landmarks"].values()),
-        "reliable_actions": reliable,
+        "k": n["k"], "dbns": n["dbns"], "change_dbns": n["change_dbns"],
+        "magnitude_dbns": n["magnitude_dbns"], "reliable_dbns": n["reliable_dbns"],
+        "plans": n["plans"], "landmarks": n["landmarks"],
+        "reliable_actions": n["reliable_actions"],
         "practice_calls": c.practice_calls, "babble_commands": c.babble_commands,
         "practice_successes": c.successes, "practice_failures": c.failures,
         "plans_created": c.plans_created, "plans_removed": c.plans_removed,
@@ -65,9 +70,17 @@ def summary_of(agent: Agent, world: Any, seed: int, steps: int, wall: float,
 
 def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
               params: Params | None = None, progress: ProgressFn | None = None,
-              checkpoint_every: int = 10_000, agent: Agent | None = None
+              checkpoint_every: int = 10_000, agent: Agent | None = None,
+              keep_checkpoints: int | None = None, metrics_every: int = METRICS_EVERY,
+              on_metrics: Callable[[dict[str, Any]], None] | None = None
               ) -> tuple[Agent, dict[str, Any]]:
     """Run the agent autonomously in ``world`` for ``steps`` steps.
+
+    With ``out``: ``checkpoints/step-NNNNNNN`` every ``checkpoint_every`` steps (the newest
+    ``keep_checkpoints`` kept; None: all, 0: none), ``metrics.jsonl`` every ``metrics_every``
+    steps, and at the end ``knowledge.json``, ``summary.json`` and ``checkpoints/final`` (a
+    link to the last ``step-N`` when that is the final state). ``on_metrics`` receives each
+    metrics line (written or not).
 
     An observation the agent rejects (NaN, unknown variable) is counted and logged in the
     summary, and the agent keeps its previous motor command; the run goes on.
@@ -79,24 +92,40 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     rejected: list[str] = []
     world_spec = getattr(world, "spec", None) or getattr(world, "name", None)
     start = agent.step_count + 1
+    ckpts = Path(out) / "checkpoints" if out is not None else None
+    metrics = MetricsLog(Path(out) / METRICS_FILE if out is not None else None, agent,
+                         start=start, every=metrics_every, on_line=on_metrics) \
+        if out is not None or on_metrics is not None else None
+    last_saved: tuple[int, Path | None] = (-1, None)
     t0 = time.perf_counter()
-    for t in range(start, start + steps):
-        try:
-            motor = agent.step(t, obs, discontinuity=bool(getattr(world, "discontinuity", False)))
-        except InvalidObservation as exc:
-            rejected.append(f"step {t}: {exc}")
-        obs = world.step(motor)
-        if progress is not None:
-            progress(t, agent)
-        if out is not None and (t + 1) % checkpoint_every == 0:
-            save_agent(agent, Path(out) / "checkpoints" / f"step-{t + 1:07d}", world_spec)
-    wall = time.perf_counter() - t0
+    try:
+        for t in range(start, start + steps):
+            try:
+                motor = agent.step(t, obs,
+                                   discontinuity=bool(getattr(world, "discontinuity", False)))
+            except InvalidObservation as exc:
+                rejected.append(f"step {t}: {exc}")
+            obs = world.step(motor)
+            if progress is not None:
+                progress(t, agent)
+            if metrics is not None:
+                metrics.after_step(t + 1, agent)
+            if ckpts is not None and (t + 1) % checkpoint_every == 0:
+                last_saved = (t, save_step_checkpoint(agent, ckpts, t + 1, world_spec,
+                                                      keep_checkpoints))
+        wall = time.perf_counter() - t0
+        if metrics is not None:
+            metrics.finish(start + steps, agent)
+    finally:
+        if metrics is not None:
+            metrics.close()
     summary = summary_of(agent, world, seed, steps, wall, rejected)
     if out is not None:
         out = Path(out)
         atomic_write_json(out / "knowledge.json", agent.knowledge())
         atomic_write_json(out / "summary.json", summary)
-        save_agent(agent, out / "checkpoints" / "final", world_spec)
+        same = last_saved[1] if last_saved[0] == start + steps - 1 else None
+        save_final_checkpoint(agent, out / "checkpoints", world_spec, same_as=same)
     return agent, summary
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 from pathlib import Path
 
 DEFAULT_ACTOR_LAG = 500
@@ -23,19 +22,67 @@ def _positive(text: str) -> int:
     return value
 
 
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}"
+                                         ) from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
+    return value
+
+
+class CliError(Exception):
+    """An expected error of the command line: main prints ``qlap COMMAND: message`` on one
+    line and exits with :attr:`code` (2: a bad input)."""
+
+    def __init__(self, message: str, code: int = 2) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's help with each option's default appended as ``(default: …)`` unless its help
+    already states one (or the default is None/False, which says nothing)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if ("default" in text or action.required or default is None or default is False
+                or default == [] or default is argparse.SUPPRESS or not action.option_strings):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    from . import __version__
+
+    try:
+        return version("qlap-runtime")
+    except PackageNotFoundError:        # a source tree that was not installed
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="qlap",
+        prog="qlap", formatter_class=HelpFormatter,
         description="QLAP, the Qualitative Learner of Action and Perception, as a runtime.")
+    p.add_argument("--version", action="version", version=f"qlap {_version()}",
+                   help="print the version and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     run = sub.add_parser(
         "run", help="an agent learning autonomously in a world",
         description="Run a QLAP agent in WORLD (Algorithm 2): motor babbling for the first "
                     "20,000 steps, then practice of learned actions chosen by IAC. Shows a "
-                    "progress bar (steps/s, DBNs, plans, landmarks), writes a checkpoint every "
-                    "10,000 steps under OUT/checkpoints/ and, at the end, OUT/knowledge.json "
-                    "and OUT/summary.json (docs/outputs.md), and prints what was learned.")
+                    "progress bar (steps/s, DBNs, plans, landmarks; plain lines when stdout is "
+                    "not a terminal), writes into the run directory OUT a checkpoint every "
+                    "10,000 steps (OUT/checkpoints/), a metrics line every 1,000 steps "
+                    "(OUT/metrics.jsonl) and, at the end, OUT/knowledge.json, OUT/summary.json "
+                    "and OUT/checkpoints/final (docs/outputs.md), and prints what was learned.")
     run.add_argument("--world", default="core",
                      help="registered world spec (e.g. core, core:floating, core2d, pong, "
                           "gym:Pendulum-v1) or package.module:Factory (default: core)")
@@ -43,7 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help="agent steps to run (default: 30000)")
     run.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     run.add_argument("--out", type=Path, default=None,
-                     help="output directory for checkpoints, knowledge.json, summary.json")
+                     help="run directory for checkpoints, metrics.jsonl, knowledge.json, "
+                          "summary.json (default: runs/WORLD-YYYYmmdd-HHMMSS-sSEED/)")
+    run.add_argument("--keep-checkpoints", type=_count, default=None, metavar="N",
+                     help="keep only the newest N of the every-10,000-steps checkpoints "
+                          "(0: none, only checkpoints/final; default: keep all, as the "
+                          "evaluation protocol of §7.2 evaluates each)")
     run.add_argument("--headless", action="store_true",
                      help="no terminal UI: a progress bar and a final summary (the default "
                           "when stdout is not a terminal)")
@@ -77,7 +129,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="length of the initial motor-babbling period (default: 20000, §6.1)")
     run.add_argument("--resume", type=Path, default=None,
                      help="continue from an agent checkpoint directory")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--quiet", action="store_true",
+                     help="no progress bar (no progress lines)")
 
     show = sub.add_parser("show", help="print learned knowledge in the reference's notation",
                           description="Print the knowledge of a run directory (its "
@@ -94,10 +147,12 @@ def build_parser() -> argparse.ArgumentParser:
                                     "with its standard error and the success rate.")
     ev.add_argument("--checkpoint", type=Path, default=None,
                     help="agent checkpoint directory (not needed with --policy random)")
-    ev.add_argument("--world", default="core", help="world spec (default: core)")
+    ev.add_argument("--world", default=None,
+                    help="world spec (default: the world the checkpoint records, else core)")
     ev.add_argument("--task", required=True, help="task name, e.g. move_block, hit_floor, pickup")
-    ev.add_argument("--trials", type=_positive, default=100)
-    ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--trials", type=_positive, default=100, help="trials of the task")
+    ev.add_argument("--seed", type=int, default=0,
+                    help="seed of the trials' set-ups (the same set-ups for every checkpoint)")
     ev.add_argument("--policy", choices=("qlap", "random"), default="qlap",
                     help="qlap (the checkpoint's agent) or random (the random-motor baseline)")
     ev.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -151,11 +206,27 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--json", action="store_true",
                         help="print the figures as JSON (reference, runs, mean)")
 
+    plot = sub.add_parser(
+        "plot", help="draw a run's metrics log (and learning curve) to RUN_DIR/metrics.png",
+        description="Draw each RUN_DIR's metrics log (metrics.jsonl, a line every 1,000 steps: "
+                    "change and magnitude DBNs, plans, landmarks, sufficiently reliable "
+                    "actions, IAC choices and babbling, steps/s) and, if the run has a "
+                    "curve.csv (qlap curve), its learning curve, into RUN_DIR/metrics.png "
+                    "(docs/outputs.md).")
+    plot.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
+                      help="run directories written by `qlap run`")
+
     snap = sub.add_parser("snapshot", help="render a world to a PNG (MuJoCo offscreen)",
                           description="Render a world's scene to a PNG file.")
-    snap.add_argument("--world", default="core")
-    snap.add_argument("--out", required=True)
-    snap.add_argument("--seed", type=int, default=0)
+    snap.add_argument("--world", default="core",
+                      help="world spec, e.g. core:secondary:aligned")
+    snap.add_argument("--out", required=True, metavar="FILE.png",
+                      help="PNG file to write (its directory must exist)")
+    snap.add_argument("--seed", type=int, default=0, help="seed of the world's placement")
+
+    from .experiments.cli import add_experiment_command
+
+    add_experiment_command(sub)
 
     from .bus.cli import add_bus_commands
 
@@ -168,16 +239,19 @@ def build_parser() -> argparse.ArgumentParser:
                     "actor of the run with the same --run, --world, --steps, --seed and "
                     "learning options; the world starts stepping when the others are alive.")
     actor.add_argument("name", choices=("world", "perception", "contingency", "landmarks",
-                                        "executor"))
+                                        "executor"), help="the actor to run here")
     from .bus.cli import _connection_args
 
     _connection_args(actor)
     actor.add_argument("--run", required=True, help="run id shared by every actor of the run")
-    actor.add_argument("--world", default="core")
-    actor.add_argument("--steps", type=_positive, default=30_000)
-    actor.add_argument("--seed", type=int, default=0)
-    actor.add_argument("--lag", type=int, default=500, help="batch lag L (default 500)")
-    actor.add_argument("--babble-steps", type=int, default=None)
+    actor.add_argument("--world", default="core",
+                       help="world spec (see qlap worlds), the same for every actor")
+    actor.add_argument("--steps", type=_positive, default=30_000, help="agent steps to run")
+    actor.add_argument("--seed", type=int, default=0, help="random seed")
+    actor.add_argument("--lag", type=_count, default=500, help="batch lag L in steps")
+    actor.add_argument("--babble-steps", type=_count, default=None,
+                       help="length of the initial motor-babbling period (default: 20000, "
+                            "§6.1)")
     actor.add_argument("--out", type=Path, default=None,
                        help="(executor) where to write knowledge.json, checkpoints")
 
@@ -188,36 +262,40 @@ def build_parser() -> argparse.ArgumentParser:
                        help="endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
     tui_p.add_argument("--run", default=None, help="run id (default: the first one heard)")
 
-    worlds_p = sub.add_parser("worlds", help="list the registered worlds")
-    worlds_p.add_argument("--json", action="store_true")
+    worlds_p = sub.add_parser(
+        "worlds", help="list the registered worlds with their descriptions and tasks",
+        description="One line per registered world spec (each variant too): the spec, what "
+                    "it is and its tasks (for qlap eval --task). Any module:Factory (a "
+                    "top-level or dotted module) is a world too.")
+    worlds_p.add_argument("--json", action="store_true",
+                          help="print a JSON list of {spec, description, tasks}")
+    for parser in sub.choices.values():
+        parser.formatter_class = HelpFormatter
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        _check_args(args)
         if args.command == "run":
             return _cmd_run(args)
         if args.command == "actor":
             return _cmd_actor(args)
         if args.command == "tui":
-            import zenoh
-
-            from tui import attach
-
-            try:
-                attach(args.connect, args.run)
-            except zenoh.ZError as exc:
-                print(f"qlap tui: cannot connect to {', '.join(args.connect)}: {exc}",
-                      file=sys.stderr)
-                return 1
-            return 0
+            return _cmd_tui(args)
         if args.command == "show":
             return _cmd_show(args)
         if args.command == "eval":
             return _cmd_eval(args)
         if args.command in ("curve", "report"):
             return _cmd_analysis(args)
+        if args.command == "plot":
+            return _cmd_plot(args)
+        if args.command == "experiment":
+            from .experiments.cli import main_experiment
+
+            return main_experiment(args, None if argv is None else list(argv)[1:])
         if args.command == "snapshot":
             from worlds.snapshot import main_snapshot
 
@@ -228,15 +306,117 @@ def main(argv: list[str] | None = None) -> int:
         if args.command in BUS_COMMANDS:
             return run_bus_command(args)
         if args.command == "worlds":
-            import worlds
-
-            names = worlds.registered()
-            print(json.dumps(names) if args.json else "\n".join(names))
-            return 0
+            return _cmd_worlds(args)
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        where = getattr(args, "run_dir", None)
+        print("interrupted" + (f"; what was written so far is in {where}" if where else ""),
+              file=sys.stderr)
         return 130
+    except Exception as exc:              # expected errors: one line, no traceback
+        leaf = expected_error(exc)
+        if leaf is None:
+            raise
+        print(f"qlap {args.command}: {one_line(leaf)}", file=sys.stderr)
+        return leaf.code if isinstance(leaf, CliError) else 1
     return 2
+
+
+def expected_error(exc: BaseException) -> BaseException | None:
+    """The error to report in one line if ``exc`` is an expected one (a bad input, a file that
+    cannot be written, an endpoint that cannot be reached, a world that cannot be made), looking
+    inside exception groups (trio nurseries); None for a bug, whose traceback is wanted."""
+    if isinstance(exc, BaseExceptionGroup):
+        leaves = [expected_error(e) for e in exc.exceptions]
+        if leaves and all(leaf is not None for leaf in leaves):
+            return leaves[0]
+        return None
+    expected: list[type] = [CliError, OSError]
+    for module, name in (("zenoh", "ZError"), ("gymnasium.error", "Error"),
+                         ("worlds.registry", "WorldSpecError"),
+                         ("qlap_runtime.bus.config", "BusConfigError")):
+        if module in sys.modules and isinstance(getattr(sys.modules[module], name, None), type):
+            expected.append(getattr(sys.modules[module], name))
+    return exc if isinstance(exc, tuple(expected)) else None
+
+
+def one_line(exc: BaseException) -> str:
+    """``exc`` as one line: an OSError as 'FILE: reason', Zenoh's source location dropped."""
+    import re
+
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    text = re.sub(r"\s+at \S+\.rs:\d+\.?\s*$", "", str(exc).strip())
+    return " ".join(text.split()) or type(exc).__name__
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    """Inputs wrong before anything starts: a negative --babble-steps, an output file whose
+    directory does not exist (--record, snapshot/record --out)."""
+    babble = getattr(args, "babble_steps", None)
+    if babble is not None and babble < 0:
+        raise CliError(f"--babble-steps {babble}: expected a non-negative integer")
+    outputs = {"run": ("record", "--record"), "snapshot": ("out", "--out"),
+               "record": ("out", "--out")}
+    attr, flag = outputs.get(args.command, (None, None))
+    value = getattr(args, attr, None) if attr else None
+    if value is not None:
+        path = Path(value)
+        if path.is_dir():
+            raise CliError(f"{flag} {value}: is a directory, not a file")
+        parent = path.parent
+        if not parent.is_dir():
+            raise CliError(f"{flag} {value}: directory {parent} does not exist")
+
+
+def _cmd_tui(args: argparse.Namespace) -> int:
+    """``qlap tui --connect``: the UI on a remote run, once the endpoint answers."""
+    import zenoh
+
+    from tui import QlapApp
+
+    from .bus.config import client_config
+
+    try:
+        zenoh.open(client_config(args.connect)).close()
+    except zenoh.ZError as exc:
+        raise CliError(f"cannot connect to {', '.join(args.connect)}: {one_line(exc)}",
+                       code=1) from None
+    try:
+        app = QlapApp(connect=args.connect, run_id=args.run)
+    except ValueError as exc:
+        raise CliError(f"--run {args.run}: {exc}") from None
+    app.run()
+    return 0 if app.return_code in (0, None) else 1
+
+
+def _cmd_worlds(args: argparse.Namespace) -> int:
+    """``qlap worlds``: each registered spec (variants too) with its description and tasks."""
+    import worlds
+    from worlds.registry import describe
+
+    rows = []
+    for spec in worlds.registered():
+        try:
+            world = worlds.make(spec)
+        except Exception as exc:       # e.g. an optional engine missing: still list the spec
+            if expected_error(exc) is None and not isinstance(exc, ImportError | ValueError):
+                raise
+            tasks, note = [], f"(cannot be made here: {one_line(exc)})"
+        else:
+            tasks, note = sorted(world.tasks), ""
+            world.close()
+        description = describe(spec) or describe(spec.split(":", 1)[0])
+        rows.append({"spec": spec, "description": " ".join(filter(None, (description, note))),
+                     "tasks": tasks})
+    if args.json:
+        print(json.dumps(rows))
+        return 0
+    width = max(len(r["spec"]) for r in rows)
+    for r in rows:
+        tasks = ", ".join(r["tasks"]) or "none (no evaluation task)"
+        print(f"{r['spec']:{width}}  {r['description']}; tasks: {tasks}")
+    print("any module:Factory is a world too, e.g. mypackage.worlds:make_world")
+    return 0
 
 
 def _make_world(spec: str, command: str):
@@ -244,15 +424,72 @@ def _make_world(spec: str, command: str):
 
     try:
         return worlds.make(spec)
-    except (ValueError, ImportError, AttributeError) as exc:
-        print(f"qlap {command}: --world {spec}: {exc}", file=sys.stderr)
+    except Exception as exc:
+        if expected_error(exc) is None and not isinstance(
+                exc, ValueError | ImportError | AttributeError):
+            raise
+        print(f"qlap {command}: --world {spec}: {one_line(exc)}", file=sys.stderr)
         return None
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
+def default_run_dir(world: str, seed: int, root: Path = Path("runs")) -> Path:
+    """``runs/<world>-<YYYYmmdd-HHMMSS>-s<seed>``, the world spec made a file name; ``-2``,
+    ``-3``, … when a run of the same second has it already."""
+    import re
     import time
 
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", world).strip("._") or "world"
+    base = f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-s{seed}"
+    path, n = root / base, 1
+    while path.exists():
+        n += 1
+        path = root / f"{base}-{n}"
+    return path
+
+
+def _prepare_out(args: argparse.Namespace) -> Path | None:
+    """The run directory (``--out`` or the default), created and checked writable with a
+    probe file before the run starts; None after a one-line error."""
+    import os
+
+    out = args.out if args.out is not None else default_run_dir(args.world, args.seed)
+    if out.exists() and not out.is_dir():
+        print(f"qlap run: --out {out}: exists and is not a directory", file=sys.stderr)
+        return None
+    probe = out / f".qlap-probe-{os.getpid()}"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with open(probe, "wb") as f:
+            f.write(b"\0" * 65536)
+            f.flush()
+            os.fsync(f.fileno())
+        probe.unlink()
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        print(f"qlap run: --out {out}: cannot write there ({reason})", file=sys.stderr)
+        try:
+            probe.unlink(missing_ok=True)
+        except OSError:
+            pass
+        return None
+    args.run_dir = out
+    print(f"run directory: {out}", flush=True)
+    return out
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    try:
+        return _cmd_run_inner(args)
+    except OSError as exc:               # e.g. the disk filled up during the run
+        where = getattr(args, "run_dir", None)
+        print(f"qlap run: {exc}" + (f" (run directory {where})" if where else ""),
+              file=sys.stderr)
+        return 1
+
+
+def _cmd_run_inner(args: argparse.Namespace) -> int:
     from .agent_run import run_agent
+    from .metrics import PlainProgress
     from .qlap import Params
     from .qlap.checkpoint import CheckpointError, load_agent
 
@@ -294,10 +531,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
             agent = load_agent(args.resume)
         except CheckpointError as exc:
             print(f"qlap run: --resume: {exc}", file=sys.stderr)
+            world.close()
             return 2
+    out = _prepare_out(args)
+    if out is None:
+        world.close()
+        return 2
     progress_cb = None
     bar = None
-    if not args.quiet:
+    plain = None
+    if not args.quiet and not sys.stdout.isatty():
+        plain = PlainProgress(args.steps, start=agent.step_count + 1 if agent else 0)
+    elif not args.quiet:
+        import time
+
         from .runtime.progress import progress_bar
 
         bar = progress_bar(args.steps)
@@ -309,21 +556,24 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 state["first"] = t
             done = t - state["first"] + 1
             if done % 500 == 0 or done == args.steps:
+                from .metrics import knowledge_counts
+
                 el = time.perf_counter() - state["t0"]
-                spaces = agent.learner.perception.spaces
-                lms = sum(len(spaces[v.index].landmarks) for v in agent.table
-                          if v.kind.value in ("motor", "magnitude"))   # as in summary.json
+                n = knowledge_counts(agent)          # as in summary.json
                 bar.update(task, completed=done, rate=f"{done / el:,.0f}",
-                           dbns=len(agent.learner.dbns), plans=len(agent.plans), lms=lms)
+                           dbns=n["dbns"], plans=n["plans"], lms=n["landmarks"])
 
         bar.start()
     try:
-        agent, summary = run_agent(world, args.steps, args.seed, args.out, params=params,
-                                   progress=progress_cb, agent=agent)
+        agent, summary = run_agent(world, args.steps, args.seed, out, params=params,
+                                   progress=progress_cb, agent=agent,
+                                   keep_checkpoints=args.keep_checkpoints, on_metrics=plain)
     finally:
         if bar is not None:
             bar.stop()
         world.close()
+    if plain is not None:
+        plain.final(summary)
     print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
           f"({summary['steps_per_s']} steps/s); k = {summary['k']}, {summary['dbns']} DBNs, "
           f"{summary['plans']} plans, {summary['landmarks']} landmarks, "
@@ -332,34 +582,44 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"rejected observations: {summary['rejected_observations']} "
               f"(first: {summary['rejected_examples'][0]})")
     print(format_knowledge(agent.knowledge(), limit=25))
-    if args.out is not None:
-        print(f"\nwrote {args.out}/knowledge.json, summary.json, checkpoints/")
+    _print_written(out)
     return 0
+
+
+def _print_written(out: Path) -> None:
+    print(f"\nwrote {out}/: knowledge.json, summary.json, metrics.jsonl, checkpoints/ "
+          f"(qlap plot {out} draws the metrics)")
 
 
 def _run_tui(args: argparse.Namespace) -> int:
     """``qlap run`` in a terminal: the agent in its own process, the UI here (docs/tui.md)."""
     from tui import DriverProcess, run_process
 
+    out = _prepare_out(args)
+    if out is None:
+        return 2
     overrides: dict = {}
     if args.babble_steps is not None:
         overrides["babble_steps"] = args.babble_steps
     if args.lag:
         overrides["batch_lag"] = args.lag
     proc = DriverProcess(args.world, params=overrides, seed=args.seed, steps=args.steps,
-                         out=args.out, listen=args.listen,
-                         checkpoint_dir=(args.out / "checkpoints") if args.out
-                         else Path("qlap-checkpoints"))
+                         out=out, listen=args.listen, checkpoint_dir=out / "checkpoints",
+                         keep_checkpoints=args.keep_checkpoints)
     run_process(proc)
+    _print_written(out)
     return 0 if proc.exitcode in (0, None) else 1
 
 
 def _run_actors(args: argparse.Namespace, world, params) -> int:
     """``qlap run --placement embedded|processes``: the actor runtime in lockstep."""
+    import threading
+
     from actors.common import RunContext
 
     from .agent_run import params_for_world
     from .bus import keys
+    from .metrics import METRICS_FILE, PlainProgress, follow_metrics
     from .runtime.launcher import run_embedded, run_processes
 
     params = params_for_world(world, params)
@@ -375,17 +635,30 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     if not args.hz > 0:
         print(f"qlap run: --hz must be positive, got {args.hz}", file=sys.stderr)
         return 2
-    with tempfile.TemporaryDirectory(prefix="qlap-run-") as tmp:
-        out = args.out if args.out is not None else Path(tmp)   # knowledge.json to print
-        ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=out,
-                         extra={"clock": args.clock, "hz": args.hz})
-        print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
-              f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
+    out = _prepare_out(args)
+    if out is None:
+        return 2
+    extra = {"clock": args.clock, "hz": args.hz}
+    if args.keep_checkpoints is not None:
+        extra["keep_checkpoints"] = args.keep_checkpoints
+    ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=out,
+                     extra=extra)
+    print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
+          f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
+    # Progress: the rich bar fed from the bus in a terminal (embedded); otherwise plain lines
+    # from the metrics log the executor writes (the same counts as the summary).
+    plain = None
+    if not args.quiet and (args.placement == "processes" or not sys.stdout.isatty()):
+        plain = PlainProgress(args.steps)
+        stop = threading.Event()
+        follower = follow_metrics(out / METRICS_FILE, plain, stop)
+    try:
         if args.placement == "embedded":
             from .runtime.progress import watch_progress
 
+            watchers = () if args.quiet or plain is not None else (watch_progress,)
             summary = run_embedded(ctx, tuple(args.listen), record=args.record,
-                                   watchers=() if args.quiet else (watch_progress,))
+                                   watchers=watchers)
         else:
             from .runtime.launcher import free_port
 
@@ -393,7 +666,13 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
             print(f"router on tcp/127.0.0.1:{port} (qlap tui/record/echo --connect "
                   f"tcp/127.0.0.1:{port})", file=sys.stderr)
             summary = run_processes(ctx, port, record=args.record)
-        knowledge = json.loads((out / "knowledge.json").read_text())
+    finally:
+        if plain is not None:
+            stop.set()
+            follower.join(5)
+    if plain is not None:
+        plain.final(summary)
+    knowledge = json.loads((out / "knowledge.json").read_text())
     print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
           f"({summary['steps_per_s']} steps/s); k = {summary.get('k')}, "
           f"{summary.get('dbns')} DBNs, {summary.get('plans')} plans, "
@@ -405,8 +684,7 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
               f"missed ticks {summary.get('missed_ticks')}, lateness p50 "
               f"{summary.get('lateness_p50_ms')} ms, p99 {summary.get('lateness_p99_ms')} ms")
     print(format_knowledge(knowledge, limit=25))
-    if args.out is not None:
-        print(f"\nwrote {args.out}/knowledge.json, summary.json, checkpoints/")
+    _print_written(out)
     return 0
 
 
@@ -470,6 +748,11 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     if args.policy == "qlap" and args.checkpoint is None:
         print("qlap eval: --checkpoint is required with --policy qlap", file=sys.stderr)
         return 2
+    if args.world is None:            # the world the checkpoint was learned in
+        from .analysis.runs import recorded_world
+
+        recorded = recorded_world(args.checkpoint) if args.checkpoint is not None else None
+        args.world = recorded or "core"
     world = _make_world(args.world, "eval")
     if world is None:
         return 2
@@ -505,6 +788,21 @@ def _cmd_analysis(args: argparse.Namespace) -> int:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    """``qlap plot``: each run's metrics log (and curve.csv) to RUN_DIR/metrics.png."""
+    from .analysis import AnalysisError
+    from .analysis.plot import plot_run
+
+    status = 0
+    for run_dir in args.runs:
+        try:
+            print(f"wrote {plot_run(run_dir)}")
+        except AnalysisError as exc:
+            print(f"qlap plot: {exc}", file=sys.stderr)
+            status = 2
+    return status
 
 
 def pretty(text: str) -> str:

@@ -11,7 +11,8 @@ pause      stop stepping (publishes a status at once)
 resume     go on
 step       ``{"n": 1}``: advance n steps while paused
 speed      ``{"steps_per_s": x}``: pace the run at x steps/s (realtime clock); 0 = free
-save       ``{"path": dir}`` (optional): checkpoint via ``save_agent``
+save       ``{"path": dir}`` (optional): checkpoint via ``save_agent`` (default: the run's
+           ``checkpoints/step-NNNNNNN``)
 goal       ``{"var": name, "value": label or index}`` → ``agent.set_goal``; ``{"clear": true}``
 quit       stop the run (the thread ends; the driver's owner closes the session)
 =========  =========================================================================
@@ -56,18 +57,25 @@ class LocalDriver:
             (``listen`` endpoints, if any) and closes it in :meth:`stop`.
         run_id: the run's id (a fresh one by default).
         speed: steps/s limit (0 = as fast as possible); paused: start paused.
-        checkpoint_dir: where ``save`` writes (``<dir>/step-NNNNNNN``).
+        checkpoint_dir: where ``save`` writes (``<dir>/step-NNNNNNN``); default
+            ``<out>/checkpoints`` (``qlap-checkpoints`` without ``out``).
+        out: the run directory (docs/outputs.md): ``checkpoints/step-NNNNNNN`` every
+            ``checkpoint_every`` steps (the newest ``keep_checkpoints`` kept, None: all),
+            ``metrics.jsonl`` every 1,000 steps, and, when the last step is done or the run
+            is quit, ``knowledge.json``, ``summary.json`` and ``checkpoints/final``.
+        world_spec: the world's spec, recorded in the checkpoints (default: its name).
         on_finish: called in the worker thread with the driver when the last step is done,
-            or when the run is quit before that
-            (e.g. to write ``knowledge.json``).
+            or when the run is quit before that (after the outputs are written).
     """
 
     def __init__(self, world: Any, agent: Any = None, *, seed: int = 0,
                  params: Any = None, steps: int | None = None,
                  session: zenoh.Session | None = None, listen: Sequence[str] = (),
                  run_id: str | None = None, speed: float = 0.0, paused: bool = False,
-                 checkpoint_dir: Path | str = "qlap-checkpoints", reset: bool = True,
-                 cadence: telemetry.Cadence | None = None, on_finish: Any = None) -> None:
+                 checkpoint_dir: Path | str | None = None, reset: bool = True,
+                 cadence: telemetry.Cadence | None = None, on_finish: Any = None,
+                 out: Path | str | None = None, checkpoint_every: int = 10_000,
+                 keep_checkpoints: int | None = None, world_spec: str | None = None) -> None:
         from qlap_runtime.agent_run import params_for_world
         from qlap_runtime.qlap.agent import Agent
 
@@ -80,7 +88,18 @@ class LocalDriver:
         self.run_id = keys.validate_run_id(run_id) if run_id else keys.new_run_id()
         self.speed = float(speed)
         self.paused = paused
-        self.checkpoint_dir = Path(checkpoint_dir)
+        self.out = None if out is None else Path(out)
+        self.checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else (
+            self.out / "checkpoints" if self.out is not None else Path("qlap-checkpoints"))
+        self.checkpoint_every = int(checkpoint_every)
+        self.keep_checkpoints = keep_checkpoints
+        self.world_spec = world_spec or getattr(world, "spec", None) \
+            or getattr(world, "name", None)
+        self._metrics: Any = None
+        self._agent_changes = 0             # goal commands applied (they change the agent)
+        self._last_saved: tuple[int, int, Path | None] = (-1, -1, None)
+        self._rejected: list[str] = []
+        self._outputs_written = False
         self.cadence = cadence or telemetry.Cadence()
         self.on_finish = on_finish
         self._listen = list(listen)
@@ -99,6 +118,7 @@ class LocalDriver:
         self._obs: Mapping[str, float] = {}
         self._motor: dict[str, float] = {}
         self.finished = False
+        self._finished_at = 0.0
         self.error: BaseException | None = None
         self.steps_done = 0
         """Steps run by this driver (read from other threads for tests and benches)."""
@@ -127,6 +147,11 @@ class LocalDriver:
         else:
             self._obs = dict(self.world.observation)
         self._motor = dict(self.agent.motor)
+        if self.out is not None:
+            from qlap_runtime.metrics import METRICS_FILE, MetricsLog
+
+            self._metrics = MetricsLog(self.out / METRICS_FILE, self.agent,
+                                       start=self.agent.step_count + 1)
         self._thread = threading.Thread(target=self._main, name=f"qlap-agent-{self.run_id}",
                                         daemon=True)
         self._started = time.perf_counter()
@@ -191,7 +216,11 @@ class LocalDriver:
 
     def _apply(self, c: Control) -> None:
         a = c.args
-        if c.command == "pause":
+        if c.command in ("pause", "resume", "step") and self.finished:
+            # The last step is done: the run stays FINISHED and takes no more steps.
+            self._message = (f"finished at step {self.agent.step_count + 1}: "
+                             f"{c.command} ignored")
+        elif c.command == "pause":
             self.paused, self._step_budget = True, 0
             self._message = "paused"
         elif c.command == "resume":
@@ -211,7 +240,7 @@ class LocalDriver:
             path = Path(a["path"]) if a.get("path") else (
                 self.checkpoint_dir / f"step-{max(self.agent.step_count + 1, 0):07d}")
             try:
-                save_agent(self.agent, path)
+                save_agent(self.agent, path, self.world_spec)
                 self._message = f"saved {path}"
             except Exception as e:
                 self._message = f"save failed: {type(e).__name__}: {e}"
@@ -220,6 +249,7 @@ class LocalDriver:
                 self.agent.clear_goal()
                 self._message = "goal cleared"
             else:
+                self._agent_changes += 1
                 try:
                     value = a.get("value")
                     key = telemetry.goal_key(self.agent, str(a["var"]), value)
@@ -270,15 +300,19 @@ class LocalDriver:
                                          discontinuity=bool(getattr(world, "discontinuity", False)))
             except InvalidObservation as e:
                 log.warning("step %d: %s", t, e)
+                self._rejected.append(f"step {t}: {e}")
             self._obs = world.step(self._motor)
             self.steps_done += 1
+            self._record(t)
             if self._step_budget > 0:
                 self._step_budget -= 1
                 if self._step_budget == 0:
                     self._publish(time.perf_counter(), force=True)
             if self.steps is not None and self.steps_done >= self.steps:
                 self.finished = True
+                self._finished_at = time.perf_counter()     # the wall clock stops here
                 self._message = f"finished {self.steps_done} steps"
+                self.write_outputs()
                 if self.on_finish is not None:
                     self.on_finish(self)
                 self._publish(time.perf_counter(), force=True)
@@ -287,8 +321,47 @@ class LocalDriver:
             self._publish(now)
             if self.speed > 0 and not self.paused:
                 self._pace(now)
-        if not self.finished and self.steps_done and self.on_finish is not None:
-            self.on_finish(self)           # quit early: the outputs still describe the run
+        if not self.finished and self.steps_done:
+            self.write_outputs()           # quit early: the outputs still describe the run
+            if self.on_finish is not None:
+                self.on_finish(self)
+        if self._metrics is not None:
+            self._metrics.close()
+
+    # ----------------------------------------------------------------------------- outputs
+    def _record(self, t: int) -> None:
+        """After agent step ``t``: the metrics line and the periodic checkpoint when due."""
+        if self._metrics is not None:
+            self._metrics.after_step(t + 1, self.agent)
+        if self.out is not None and (t + 1) % self.checkpoint_every == 0:
+            from qlap_runtime.qlap.checkpoint import save_step_checkpoint
+
+            self._last_saved = (self.agent.step_count, self._agent_changes,
+                                save_step_checkpoint(self.agent, self.out / "checkpoints",
+                                                     t + 1, self.world_spec,
+                                                     self.keep_checkpoints))
+
+    def write_outputs(self) -> None:
+        """``knowledge.json``, ``summary.json``, the metrics log's last line and
+        ``checkpoints/final`` (a link to the last periodic checkpoint when it holds this very
+        state) into ``out``; once."""
+        if self.out is None or self._outputs_written:
+            return
+        from qlap_runtime.agent_run import summary_of
+        from qlap_runtime.qlap.checkpoint import atomic_write_json, save_final_checkpoint
+
+        self._outputs_written = True
+        agent = self.agent
+        wall = time.perf_counter() - self._started
+        if self._metrics is not None:
+            self._metrics.finish(agent.step_count + 1, agent)
+        atomic_write_json(self.out / "knowledge.json", agent.knowledge())
+        atomic_write_json(self.out / "summary.json",
+                          summary_of(agent, self.world, self.seed, self.steps_done, wall,
+                                     self._rejected))
+        step, changes, path = self._last_saved
+        same = path if (step, changes) == (agent.step_count, self._agent_changes) else None
+        save_final_checkpoint(agent, self.out / "checkpoints", self.world_spec, same_as=same)
 
     def _pace(self, now: float) -> None:
         """Realtime clock: tick n starts at t0 + n / speed; count late and missed ticks."""
@@ -315,7 +388,8 @@ class LocalDriver:
             paused=self.paused, finished=self.finished, speed=self.speed,
             clock="realtime" if self.speed > 0 else "free", placement="embedded",
             world=str(getattr(self.world, "name", "")), seed=self.seed,
-            late_ticks=self._late, missed_ticks=self._missed, wall_s=now - self._started,
+            late_ticks=self._late, missed_ticks=self._missed,
+            wall_s=(self._finished_at if self.finished else now) - self._started,
             message=self._message)
 
     def _publish(self, now: float, force: bool = False) -> None:
@@ -355,23 +429,12 @@ def _child_main(spec: dict[str, Any], ready: Any = None) -> None:
     # popping only when truthy left ``params={}`` (the default of ``qlap run``) in the spec,
     # so it reached LocalDriver twice (issue 12).
     overrides = spec.pop("params", None) or {}
-    out = spec.pop("out", None)
-    world = worlds.make(spec.pop("world"))
+    world_spec = spec.pop("world")
+    world = worlds.make(world_spec)
     params = Params().replace(**overrides) if overrides else None
+    spec.setdefault("world_spec", world_spec)
 
-    def finish(d: LocalDriver) -> None:
-        if out is None:
-            return
-        from qlap_runtime.agent_run import summary_of
-        from qlap_runtime.qlap.checkpoint import atomic_write_json, save_agent
-
-        wall = time.perf_counter() - d._started
-        atomic_write_json(Path(out) / "knowledge.json", d.agent.knowledge())
-        atomic_write_json(Path(out) / "summary.json",
-                          summary_of(d.agent, d.world, d.seed, d.steps_done, wall, []))
-        save_agent(d.agent, Path(out) / "checkpoints" / "final")
-
-    d = LocalDriver(world, params=params, on_finish=finish, **spec)
+    d = LocalDriver(world, params=params, **spec)
     d.start()
     if ready is not None:
         ready.set()                      # listening: viewers may connect
@@ -389,8 +452,9 @@ class DriverProcess:
 
     ``params`` is a dict of :class:`~qlap_runtime.qlap.Params` overrides (picklable); the other
     keyword arguments go to :class:`LocalDriver` (``seed``, ``steps``, ``speed``, ``paused``,
-    ``checkpoint_dir``); ``out`` writes knowledge.json, summary.json and a final checkpoint
-    when the last step is done.
+    ``checkpoint_dir``, ``keep_checkpoints``); ``out`` is the run directory: checkpoints, the
+    metrics log, and knowledge.json, summary.json and a final checkpoint when the last step is
+    done (or the run is quit).
     """
 
     def __init__(self, world: str, *, run_id: str | None = None,

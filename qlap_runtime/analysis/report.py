@@ -156,11 +156,11 @@ def resolutions_of(path: Path) -> dict[str, float]:
     """Each motor's and magnitude's resolution, as the learner of the run's final checkpoint
     (or of checkpoint ``path``) defines it, ``Perception.resolution``. Empty when there is no
     checkpoint or the learner defines none; the report then uses the 0.1 % rule."""
-    from ..qlap.checkpoint import CheckpointError, load_learner
+    from ..qlap.checkpoint import CheckpointError, load_learner, resolve_checkpoint
     from ..qlap.variables import Kind
 
-    path = Path(path)
-    candidates = [path, path / "checkpoints" / "final"]
+    path = resolve_checkpoint(path)
+    candidates = [path, resolve_checkpoint(path / "checkpoints" / "final")]
     for d in candidates:
         if not (d / "learner.json").is_file():
             continue

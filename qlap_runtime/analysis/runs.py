@@ -2,9 +2,10 @@
 
 A run directory holds ``checkpoints/step-NNNNNNN/`` every 10,000 steps (§7.2 of J. Mugan,
 *Autonomous Qualitative Learning of Distinctions and Actions in a Developing Agent*, PhD
-dissertation, UT Austin, 2010), ``checkpoints/final``, ``knowledge.json`` and ``summary.json``
-(docs/outputs.md). A checkpoint taken after agent step t is named ``step-(t+1)``: its agent has
-``step_count`` t and has observed t + 1 steps.
+dissertation, UT Austin, 2010), ``checkpoints/final`` (a directory, or a link or marker file
+naming the last ``step-N`` when that is the final state), ``knowledge.json`` and
+``summary.json`` (docs/outputs.md). A checkpoint taken after agent step t is named
+``step-(t+1)``: its agent has ``step_count`` t and has observed t + 1 steps.
 """
 
 from __future__ import annotations
@@ -47,6 +48,14 @@ class Checkpoint:
     """``step-NNNNNNN`` or ``final``."""
 
 
+def _resolve(path: str | Path) -> Path:
+    """A checkpoint path with a marker file (``final`` where no link could be made) followed
+    (:func:`~qlap_runtime.qlap.checkpoint.resolve_checkpoint`)."""
+    from ..qlap.checkpoint import resolve_checkpoint
+
+    return resolve_checkpoint(path)
+
+
 def _read_json(path: Path) -> dict[str, Any] | None:
     try:
         data = json.loads(path.read_text())
@@ -57,7 +66,7 @@ def _read_json(path: Path) -> dict[str, Any] | None:
 
 def checkpoint_step(path: Path) -> int:
     """Steps observed by the agent of checkpoint ``path`` (``step_count`` + 1)."""
-    meta = _read_json(Path(path) / "agent.json")
+    meta = _read_json(_resolve(path) / "agent.json")
     if meta is None or "step_count" not in meta:
         raise AnalysisError(f"{path}: no readable agent.json with a step_count")
     return int(meta["step_count"]) + 1
@@ -65,7 +74,8 @@ def checkpoint_step(path: Path) -> int:
 
 def find_checkpoints(run_dir: Path, run: str) -> list[Checkpoint]:
     """The agent checkpoints of ``run_dir`` by step; ``final`` only when no ``step-N`` has its
-    step (a run of a multiple of 10,000 steps ends with both, the same agent up to one step).
+    step (a run of a multiple of 10,000 steps ends with ``final`` a link to its last
+    ``step-N``; older runs with a copy).
 
     Directories without ``agent.json`` (being written, or learner-only) are skipped.
     """
@@ -75,7 +85,7 @@ def find_checkpoints(run_dir: Path, run: str) -> list[Checkpoint]:
         m = _STEP_DIR.fullmatch(d.name)
         if m and (d / "agent.json").is_file():
             found.append(Checkpoint(run, d, int(m[1]), d.name))
-    final = root / "final"
+    final = _resolve(root / "final")
     if (final / "agent.json").is_file():
         step = checkpoint_step(final)
         if step not in {c.step for c in found}:
@@ -100,7 +110,7 @@ def recorded_world(checkpoint: Path) -> str | None:
     Checkpoints of version 1 record none (docs/checkpoint.md); this reads it once they do.
     """
     for name in ("agent.json", "learner.json"):
-        meta = _read_json(Path(checkpoint) / name)
+        meta = _read_json(_resolve(checkpoint) / name)
         if meta is not None and isinstance(meta.get("world"), str):
             return str(meta["world"])
     return None
@@ -135,15 +145,15 @@ def load_knowledge(path: Path) -> dict[str, Any]:
     """
     from ..qlap.checkpoint import CheckpointError, load_agent
 
-    path = Path(path)
+    path = _resolve(path)
     if (path / "knowledge.json").is_file():
         knowledge = _read_json(path / "knowledge.json")
         if knowledge is None:
             raise AnalysisError(f"{path / 'knowledge.json'}: not a JSON object")
         return knowledge
     target = path if (path / "agent.json").is_file() else None
-    if target is None and (path / "checkpoints" / "final" / "agent.json").is_file():
-        target = path / "checkpoints" / "final"
+    if target is None and (_resolve(path / "checkpoints" / "final") / "agent.json").is_file():
+        target = _resolve(path / "checkpoints" / "final")
     if target is None and (path / "checkpoints").is_dir():
         ckpts = find_checkpoints(path, path.name)
         target = ckpts[-1].path if ckpts else None

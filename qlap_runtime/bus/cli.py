@@ -45,7 +45,8 @@ def add_bus_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[t
                        description="Run a Zenoh router (mode router, no scouting) until "
                                    "Ctrl-C. Either --config FILE (JSON5, see "
                                    "examples/router.json5) or --listen ENDPOINT.")
-    r.add_argument("--config", type=Path, default=None, help="zenoh JSON5 config file")
+    r.add_argument("--config", type=Path, default=None,
+                   help="zenoh JSON5 config file (default: a router on --listen)")
     r.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="endpoint to listen on (default tcp/127.0.0.1:7447; repeatable)")
 
@@ -70,7 +71,8 @@ def add_bus_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[t
                                    "(e.g. 'qlap/**' or 'qlap/RUN/sense').")
     _connection_args(e)
     e.add_argument("key", metavar="KEY", help="key expression")
-    e.add_argument("--count", type=int, default=None, help="stop after N messages")
+    e.add_argument("--count", type=int, default=None, metavar="N",
+                   help="stop after N messages (default: until Ctrl-C)")
     e.add_argument("--raw", action="store_true", help="print payloads without validating")
 
 
@@ -89,10 +91,34 @@ def run_bus_command(args: argparse.Namespace) -> int:
     except BusConfigError as e:
         print(f"qlap {args.command}: {e}", file=sys.stderr)
         return 2
-    except zenoh.ZError as e:
-        print(f"qlap {args.command}: {e}", file=sys.stderr)
-        return 1
+    except Exception as e:             # also inside trio's exception groups
+        leaf = _expected(e)
+        if leaf is None:
+            raise
+        print(f"qlap {args.command}: {_describe(leaf, args)}", file=sys.stderr)
+        return 2 if isinstance(leaf, BusConfigError) else 1
     raise ValueError(f"not a bus command: {args.command!r}")
+
+
+def _expected(exc: BaseException) -> BaseException | None:
+    """``exc`` itself, or the first error of an exception group whose errors are all expected
+    (an unreachable endpoint, a file that cannot be written, a bad configuration)."""
+    if isinstance(exc, BaseExceptionGroup):
+        leaves = [_expected(e) for e in exc.exceptions]
+        return leaves[0] if leaves and all(leaf is not None for leaf in leaves) else None
+    return exc if isinstance(exc, zenoh.ZError | OSError | BusConfigError) else None
+
+
+def _describe(exc: BaseException, args: argparse.Namespace) -> str:
+    """One line: 'cannot connect to ENDPOINTS: …' for Zenoh, 'FILE: reason' for a file."""
+    import re
+
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    text = " ".join(re.sub(r"\s+at \S+\.rs:\d+\.?\s*$", "", str(exc).strip()).split())
+    if isinstance(exc, zenoh.ZError) and getattr(args, "connect", None):
+        return f"cannot connect to {', '.join(args.connect)}: {text}"
+    return text
 
 
 def _client(args: argparse.Namespace) -> zenoh.Config:

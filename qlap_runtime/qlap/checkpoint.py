@@ -6,11 +6,12 @@ and renamed, so a crash never leaves a half-written checkpoint. The JSON's ``for
 ``version`` fields are checked on load; a missing, corrupt or foreign checkpoint raises
 :class:`CheckpointError` with the path and the reason. Schema: ``docs/checkpoint.md``.
 
-Version 2 (compact): every array is in the npz (the plans' Q-tables too), the JSON has no
-indentation, and the real-valued state rows (DBN activations, plan calls, the perception
-history) are stored once in a table of distinct rows (byte-for-byte, so NaN and -0.0 survive)
-with an index per array — the same world state is shared by many DBNs activated at one step.
-Version 1 checkpoints are still read.
+Version 3 (compact): every array is in the npz (the plans' Q-tables too, byte-shuffled), the
+JSON has no indentation, the real-valued state rows (DBN activations, plan calls, the
+perception history) are stored once in a table of distinct rows (byte-for-byte, so NaN and
+-0.0 survive) with an index per array — the same world state is shared by many DBNs activated
+at one step — and the per-DBN and per-plan arrays are grouped into one array per field.
+Versions 1 and 2 are still read.
 
 A run directory's ``checkpoints/`` holds ``step-NNNNNNN/`` every 10,000 steps (§7.2) and
 ``final``: a directory, or, when the last ``step-N`` holds exactly the final state, a symbolic
@@ -22,10 +23,12 @@ from __future__ import annotations
 
 import io
 import json
+import lzma
 import os
 import re
 import shutil
 import tempfile
+import zipfile
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -40,9 +43,10 @@ from .quantity import QuantitySpace
 from .variables import Event, VariableTable
 
 FORMAT = "qlap-learner"
-VERSION = 2
-READABLE_VERSIONS = (1, 2)
-"""Versions :func:`read_checkpoint` reads (1: arrays partly in indented JSON; 2: compact)."""
+VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
+"""Versions :func:`read_checkpoint` reads (1: indented JSON, an npz entry per array; 2: compact
+JSON, distinct rows; 3: as 2, the per-DBN arrays grouped into one array per field)."""
 
 ROWS = "_rows"
 """The npz entry (version 2) holding the distinct state rows; an array ``K`` stored as rows is
@@ -113,15 +117,86 @@ def _unpack_rows(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return arrays
 
 
+def _group(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    """Store the per-object arrays ``<prefix>.<id>.<field>`` (one per DBN or plan) as one
+    array per field: ``<prefix>.*.<field>`` (their values, flattened and concatenated in id
+    order), ``….ids`` and ``….shapes``. Thousands of small npz entries cost more in headers
+    than in data, and deflate does better on one long array."""
+    fields: dict[str, list[tuple[int, np.ndarray]]] = {}
+    rest = {}
+    for k, v in arrays.items():
+        parts = k.split(".", 2)
+        if len(parts) == 3 and parts[0] == prefix and parts[1].isdigit():
+            fields.setdefault(parts[2], []).append((int(parts[1]), np.asarray(v)))
+        else:
+            rest[k] = v
+    for field, items in fields.items():
+        items.sort(key=lambda item: item[0])
+        dtype = np.result_type(*(a.dtype for _, a in items))
+        if len({a.ndim for _, a in items}) > 1 or not all(
+                a.dtype == dtype or np.array_equal(a.astype(dtype).astype(a.dtype), a)
+                for _, a in items):
+            rest.update({f"{prefix}.{i}.{field}": a for i, a in items})   # kept apart
+            continue
+        items = [(i, a.astype(dtype, copy=False)) for i, a in items]   # e.g. counts as float
+        key = f"{prefix}.*.{field}"
+        rest[key] = np.concatenate([a.ravel() for _, a in items])
+        rest[f"{key}.ids"] = np.array([i for i, _ in items], dtype=np.int64)
+        rest[f"{key}.shapes"] = np.array([a.shape for _, a in items], dtype=np.int64
+                                         ).reshape(len(items), items[0][1].ndim)
+    return rest
+
+
+def _ungroup(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Inverse of :func:`_group` (for every prefix)."""
+    for key in [k for k in arrays if ".*." in k and not k.endswith((".ids", ".shapes"))]:
+        prefix, field = key.split(".*.", 1)
+        data = arrays.pop(key)
+        ids, shapes = arrays.pop(f"{key}.ids"), arrays.pop(f"{key}.shapes")
+        at = 0
+        for i, shape in zip(ids, shapes, strict=True):
+            n = int(np.prod(shape))
+            arrays[f"{prefix}.{int(i)}.{field}"] = data[at:at + n].reshape(tuple(shape))
+            at += n
+        if at != len(data):
+            raise ValueError(f"{key}: {len(data)} values for shapes totalling {at}")
+    return arrays
+
+
+XZ_ARRAYS = (ROWS, "plan.*.q_values")
+"""The large tables of full-precision floats (the distinct state rows, the Q-values), stored
+as ``K.npy.xz``: their ``.npy`` compressed with xz (LZMA, preset 0), about a fifth smaller than
+deflate for a second or two per checkpoint."""
+
+
 def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """An npz (a zip of ``.npy`` files, deflated, as ``np.savez_compressed`` writes it), with
+    the :data:`XZ_ARRAYS` stored as ``.npy.xz`` entries instead."""
     buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
+    with zipfile.ZipFile(buf, "w", allowZip64=True) as zf:
+        for key, value in arrays.items():
+            npy = io.BytesIO()
+            np.lib.format.write_array(npy, np.asanyarray(value), allow_pickle=False)
+            if key in XZ_ARRAYS:
+                zf.writestr(f"{key}.npy.xz", lzma.compress(npy.getvalue(), preset=0),
+                            compress_type=zipfile.ZIP_STORED)
+            else:
+                zf.writestr(f"{key}.npy", npy.getvalue(), compress_type=zipfile.ZIP_DEFLATED)
     atomic_write_bytes(path, buf.getvalue())
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    """Every array of an npz written by :func:`_write_npz` or ``np.savez`` (no pickle)."""
+    out = {}
+    with zipfile.ZipFile(path) as zf:
+        for name in zf.namelist():
+            if name.endswith(".npy.xz"):
+                data = io.BytesIO(lzma.decompress(zf.read(name)))
+                out[name[:-7]] = np.lib.format.read_array(data, allow_pickle=False)
+            elif name.endswith(".npy"):
+                with zf.open(name) as f:
+                    out[name[:-4]] = np.lib.format.read_array(f, allow_pickle=False)
+    return out
 
 
 def resolve_checkpoint(path: str | Path) -> Path:
@@ -188,7 +263,7 @@ def save_learner(learner: ModelLearner, directory: str | Path, name: str = "lear
     meta, arrays = learner_state(learner)
     rows = ["perception.hist_x"] + [k for k in arrays if k.startswith("dbn.")
                                     and k.endswith(("act_x", "pending_x"))]
-    _write_npz(directory / f"{name}.npz", _pack_rows(arrays, rows))
+    _write_npz(directory / f"{name}.npz", _group(_pack_rows(arrays, rows), "dbn"))
     _write_compact_json(directory / f"{name}.json", meta)
     return directory
 
@@ -210,7 +285,7 @@ def read_checkpoint(directory: str | Path, name: str = "learner"
                               f"supported (this build reads versions "
                               f"{', '.join(map(str, READABLE_VERSIONS))})")
     try:
-        arrays = _unpack_rows(_read_npz(npath))
+        arrays = _unpack_rows(_ungroup(_read_npz(npath)))
     except FileNotFoundError:
         raise CheckpointError(f"{npath}: no such checkpoint file") from None
     except Exception as exc:  # zipfile/np errors on corrupt data
@@ -282,9 +357,36 @@ def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Mode
 # The whole agent (ch. 5–6): the learner's files plus agent.json / agent.npz
 # ---------------------------------------------------------------------------------------------
 AGENT_FORMAT = "qlap-agent"
-AGENT_VERSION = 2
-AGENT_READABLE_VERSIONS = (1, 2)
-"""1: Q-tables in agent.json (indented); 2: Q-tables in agent.npz, compact JSON."""
+AGENT_VERSION = 3
+AGENT_READABLE_VERSIONS = (1, 2, 3)
+"""1: Q-tables in agent.json (indented); 2: Q-tables in agent.npz as they are, compact JSON;
+3: Q-tables in agent.npz as the mask of their not-applicable entries and their other values
+byte-shuffled (:func:`_pack_q`), the per-plan arrays grouped into one array per field."""
+
+
+def _pack_q(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A Q-table as (packed bit mask of its not-applicable entries, row-major; the other values
+    as an (8, n) uint8 array: byte k of every value, little-endian float64, in row k). The
+    Q-values of one plan share their sign and exponent bytes, which deflate then finds together
+    (a third smaller than the plain array); the round trip is byte-exact."""
+    from .mdp import NOT_APPLICABLE
+
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    na = q == NOT_APPLICABLE
+    values = np.ascontiguousarray(q[~na], dtype="<f8")          # little-endian on any host
+    return np.packbits(na.ravel()), np.ascontiguousarray(values.view(np.uint8)
+                                                         .reshape(-1, 8).T)
+
+
+def _unpack_q(shape: tuple[int, ...], na_bits: np.ndarray, shuffled: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_pack_q`."""
+    from .mdp import NOT_APPLICABLE
+
+    n = int(np.prod(shape))
+    na = np.unpackbits(na_bits, count=n).astype(bool).reshape(shape)
+    q = np.full(shape, NOT_APPLICABLE, dtype=np.float64)
+    q[~na] = np.ascontiguousarray(shuffled.T).view("<f8").ravel()
+    return q
 
 
 def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> Path:
@@ -301,8 +403,9 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> P
         plans.append({"id": pl.id, "dbn_id": pl.dbn_id, "kind": pl.kind, "created": pl.created,
                       "context_o": list(pl.context_o), "call_n": pl.call_n,
                       "call_head": pl.call_head, "calls": pl.calls,
-                      "successes": pl.successes, "ever_reliable": bool(pl.ever_reliable)})
-        arrays[f"plan.{pid}.q"] = np.asarray(pl.q, dtype=float)
+                      "successes": pl.successes, "ever_reliable": bool(pl.ever_reliable),
+                      "q_shape": list(np.shape(pl.q))})
+        arrays[f"plan.{pid}.q_na"], arrays[f"plan.{pid}.q_values"] = _pack_q(pl.q)
         arrays[f"plan.{pid}.call_x"] = pl.call_x
         arrays[f"plan.{pid}.call_ok"] = pl.call_ok
         arrays[f"plan.{pid}.cpt_s"] = pl.cpt_s
@@ -326,7 +429,8 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> P
     if world is not None:
         meta["world"] = str(world)
     _write_npz(directory / "agent.npz",
-               _pack_rows(arrays, [k for k in arrays if k.endswith(".call_x")]))
+               _group(_pack_rows(arrays, [k for k in arrays if k.endswith(".call_x")]),
+                      "plan"))
     _write_compact_json(directory / "agent.json", meta)
     return directory
 
@@ -344,7 +448,7 @@ def load_agent(directory: str | Path) -> Any:
     jpath = directory / "agent.json"
     try:
         meta = json.loads(jpath.read_text())
-        arrays = _unpack_rows(_read_npz(directory / "agent.npz"))
+        arrays = _unpack_rows(_ungroup(_read_npz(directory / "agent.npz")))
     except FileNotFoundError as exc:
         raise CheckpointError(f"{directory}: not an agent checkpoint ({exc.filename} missing)"
                               ) from None
@@ -379,9 +483,12 @@ def load_agent(directory: str | Path) -> Any:
             agent._rebuild(pl, fresh=True)
             if "q" in d:                                        # version 1
                 pl.q = q_from_state(d["q"])
-            else:
+            elif f"plan.{pid}.q" in arrays:                    # version 2
                 q = arrays[f"plan.{pid}.q"].astype(float)
                 pl.q = np.where(np.isfinite(q), q, NOT_APPLICABLE)
+            else:
+                pl.q = _unpack_q(tuple(int(n) for n in d["q_shape"]),
+                                 arrays[f"plan.{pid}.q_na"], arrays[f"plan.{pid}.q_values"])
             traces = arrays[f"plan.{pid}.traces"]
             pl.sarsa = SarsaLambda(pl.q, learner.params,
                                    traces.astype(float) if traces.size else None)

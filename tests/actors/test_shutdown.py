@@ -27,9 +27,10 @@ def running(pid: int) -> bool:
     return "Z" not in state.split()[1]
 
 
-def start(placement: str) -> subprocess.Popen:
+def start(placement: str, out) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "qlap_runtime.cli", "run", "--headless", "--quiet",
-           "--placement", placement, "--world", "core2d", "--steps", "1000000"]
+           "--placement", placement, "--world", "core2d", "--steps", "1000000",
+           "--out", str(out)]
     # A runner in the background (CI) may ignore SIGINT, and children inherit that: restore the
     # default so the run sees Ctrl-C as a terminal would deliver it.
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -51,8 +52,8 @@ def wait_running(p: subprocess.Popen, placement: str, limit: float = 60) -> list
 @pytest.mark.parametrize(("placement", "sig"), [("embedded", signal.SIGINT),
                                                 ("processes", signal.SIGINT),
                                                 ("processes", signal.SIGTERM)])
-def test_a_run_stops_promptly_and_leaves_nothing(placement, sig):
-    p = start(placement)
+def test_a_run_stops_promptly_and_leaves_nothing(placement, sig, tmp_path):
+    p = start(placement, tmp_path / "run")
     try:
         kids = wait_running(p, placement)
         t0 = time.monotonic()

@@ -1,0 +1,214 @@
+"""Bad inputs to `qlap` give one line on stderr and a non-zero exit (issue 12, item 6), and the
+conventions of item 7: --version, help with defaults, `qlap worlds` with descriptions and tasks.
+
+Most cases call :func:`qlap_runtime.cli.main` (the `qlap` entry point) in-process; the ones
+whose error came out of a trio nursery or the Textual app run the real command in a subprocess.
+Unreachable endpoints are a local port just closed: the connection is refused at once."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import subprocess
+import sys
+
+import pytest
+
+import worlds
+from qlap_runtime.cli import build_parser, main
+
+
+def qlap(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def qlap_process(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "qlap_runtime.cli", *argv],
+                          capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+
+
+def assert_one_line(code: int, err: str, *names: str) -> str:
+    assert code not in (0, None), err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for name in names:
+        assert name in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# ------------------------------------------------------------------------ files and directories
+def test_run_out_naming_an_existing_file(capsys, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "sync",
+                        "--steps", "10", "--out", str(afile))
+    assert_one_line(code, err, str(afile), "not a directory")
+
+
+def test_run_record_into_a_missing_directory(capsys, tmp_path):
+    target = tmp_path / "missing" / "x.mcap"
+    code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--steps", "10",
+                        "--out", str(tmp_path / "run"), "--record", str(target))
+    assert_one_line(code, err, "--record", str(target), "does not exist")
+    assert not (tmp_path / "run").exists()          # refused before anything started
+
+
+def test_snapshot_out_into_a_missing_directory(capsys, tmp_path):
+    target = tmp_path / "missing" / "scene.png"
+    code, _, err = qlap(capsys, "snapshot", "--out", str(target))
+    assert_one_line(code, err, "qlap snapshot", str(target), "does not exist")
+
+
+def test_record_out_into_a_missing_directory(capsys, tmp_path, closed_port):
+    target = tmp_path / "missing" / "x.mcap"
+    code, _, err = qlap(capsys, "record", "--connect", f"tcp/127.0.0.1:{closed_port}",
+                        "--out", str(target))
+    assert_one_line(code, err, "qlap record", str(target), "does not exist")
+
+
+# ------------------------------------------------------------------------ unreachable endpoints
+@pytest.mark.parametrize("command", [["echo", "qlap/**"],
+                                     ["record", "--out", "OUT", "--duration", "1"]])
+def test_echo_and_record_to_an_unreachable_endpoint(tmp_path, closed_port, command):
+    endpoint = f"tcp/127.0.0.1:{closed_port}"
+    command = [str(tmp_path / "x.mcap") if a == "OUT" else a for a in command]
+    r = qlap_process(command[0], "--connect", endpoint, *command[1:])
+    line = assert_one_line(r.returncode, r.stderr, f"qlap {command[0]}", endpoint)
+    assert "cannot connect" in line
+    assert "ExceptionGroup" not in r.stderr
+
+
+def test_tui_to_an_unreachable_endpoint(closed_port):
+    endpoint = f"tcp/127.0.0.1:{closed_port}"
+    r = qlap_process("tui", "--connect", endpoint)
+    assert_one_line(r.returncode, r.stderr, "qlap tui", "cannot connect", endpoint)
+    assert r.stdout == ""                            # the UI never started
+
+
+# ------------------------------------------------------------------------ worlds
+def test_unknown_gym_environment(capsys):
+    code, _, err = qlap(capsys, "eval", "--policy", "random", "--world", "gym:NoSuchEnv-v0",
+                        "--task", "x")
+    assert_one_line(code, err, "gym:NoSuchEnv-v0", "NoSuchEnv")
+
+
+def test_an_import_path_that_is_no_world_factory(capsys):
+    code, _, err = qlap(capsys, "eval", "--policy", "random", "--world", "os.path:join",
+                        "--task", "x")
+    assert_one_line(code, err, "os.path:join", "not a world factory")
+
+
+@pytest.mark.parametrize("spec", ["worlds:X", "mymod_that_is_not_there:make", "nosuchworld"])
+def test_unknown_world_mentions_the_import_form(capsys, spec):
+    code, _, err = qlap(capsys, "eval", "--policy", "random", "--world", spec, "--task", "x")
+    line = assert_one_line(code, err, spec, "module:Factory", "core")
+    assert "unknown world 'worlds'" not in line
+
+
+def test_a_top_level_module_factory_is_a_world(capsys, tmp_path, monkeypatch):
+    (tmp_path / "qlap_plugin_world.py").write_text(
+        "import worlds\n\ndef make():\n    return worlds.make('core2d')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    world = worlds.make("qlap_plugin_world:make")
+    assert "move_block" in world.tasks
+    world.close()
+    code, out, err = qlap(capsys, "eval", "--policy", "random", "--world",
+                          "qlap_plugin_world:make", "--task", "move_block", "--trials", "1")
+    assert code == 0, err
+    assert "mean reward" in out
+    # registered names come first: core:floating is the variant, not an import of "core"
+    world = worlds.make("core:floating")
+    assert world.name == "core:floating"
+    world.close()
+
+
+def test_negative_babble_steps(capsys, tmp_path):
+    code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "sync",
+                        "--steps", "10", "--babble-steps", "-3", "--out", str(tmp_path / "r"))
+    assert_one_line(code, err, "--babble-steps", "-3")
+    assert not (tmp_path / "r").exists()
+
+
+def test_eval_takes_the_world_from_the_checkpoint(capsys, tmp_path):
+    out = tmp_path / "pong"
+    code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "sync",
+                        "--world", "pong", "--steps", "300", "--babble-steps", "100",
+                        "--out", str(out))
+    assert code == 0, err
+    final = str(out / "checkpoints" / "final")
+    code, stdout, err = qlap(capsys, "eval", "--checkpoint", final, "--task", "pong_volley",
+                             "--trials", "1")
+    assert code == 0, err
+    assert stdout.startswith("pong pong_volley")
+    code, _, err = qlap(capsys, "eval", "--checkpoint", final, "--task", "move_block",
+                        "--trials", "1")
+    assert_one_line(code, err, "pong", "move_block")
+
+
+# ------------------------------------------------------------------------ conventions (item 7)
+def test_version():
+    r = qlap_process("--version")
+    assert r.returncode == 0
+    assert r.stdout.startswith("qlap ")
+    assert r.stdout.split()[1][0].isdigit()
+
+
+def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    return {}
+
+
+def test_every_option_of_every_subcommand_has_help():
+    parser = build_parser()
+    missing = []
+    for name, sub in _subparsers(parser).items():
+        for action in sub._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            if not (action.help or "").strip():
+                missing.append(f"{name} {'/'.join(action.option_strings) or action.dest}")
+    assert not missing
+
+
+def test_help_shows_defaults(capsys):
+    with pytest.raises(SystemExit):
+        main(["eval", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "trials of the task (default: 100)" in text
+    assert "(default: the world the checkpoint records, else core)" in text
+    assert "(default: 0)" in text                    # --seed: a default of 0 is shown
+    with pytest.raises(SystemExit):
+        main(["echo", "--help"])
+    assert "(default: until Ctrl-C)" in " ".join(capsys.readouterr().out.split())
+
+
+def test_worlds_lists_each_spec_with_description_and_tasks(capsys):
+    code, out, _ = qlap(capsys, "worlds")
+    assert code == 0
+    lines = out.strip().splitlines()
+    specs = worlds.registered()
+    for spec in specs:
+        line = next(ln for ln in lines if ln.split()[0] == spec)
+        assert "tasks:" in line
+        assert len(line.split("tasks:")[0].split()) > 2, line    # a description
+    core = next(ln for ln in lines if ln.split()[0] == "core")
+    assert "move_block" in core and "pickup" in core and "hit_floor" in core
+    assert "pong_volley" in next(ln for ln in lines if ln.split()[0] == "pong")
+    assert "module:Factory" in lines[-1]
+    code, out, _ = qlap(capsys, "worlds", "--json")
+    rows = {r["spec"]: r for r in json.loads(out)}
+    assert set(rows) == set(specs)
+    assert rows["core:secondary:aligned"]["tasks"] == ["hit_secondary", "pickup"]

@@ -1,0 +1,399 @@
+"""What a run leaves behind (issue 12): the run directory by default, checkpoint retention and
+``final`` as a link, the compact checkpoint format, the metrics log in every placement,
+``qlap plot``, plain progress lines and the one-line errors of ``--out``."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from qlap_runtime.qlap import Params
+from qlap_runtime.qlap.checkpoint import (
+    CheckpointError,
+    _pack_rows,
+    _unpack_rows,
+    load_agent,
+    save_agent,
+)
+
+WORLD = "core2d"
+PARAMS = Params(babble_steps=1000)
+TIME_KEYS = ("wall_s", "steps_per_s")
+
+
+def qlap(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "qlap_runtime.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+def sync_run(out: Path | None, steps: int, *, every: int = 1000, keep: int | None = None,
+             params: Params = PARAMS, seed: int = 1, agent=None):
+    import worlds
+    from qlap_runtime.agent_run import run_agent
+
+    world = worlds.make(WORLD)
+    try:
+        return run_agent(world, steps, seed, out, params=params, checkpoint_every=every,
+                         keep_checkpoints=keep, agent=agent)
+    finally:
+        world.close()
+
+
+def metrics(run: Path) -> list[dict]:
+    from qlap_runtime.metrics import read_metrics
+
+    return read_metrics(run / "metrics.jsonl")
+
+
+def without_time(lines: list[dict]) -> list[dict]:
+    return [{k: v for k, v in line.items() if k not in TIME_KEYS} for line in lines]
+
+
+# --------------------------------------------------------------------------- run directory
+def test_default_run_directory_is_created_and_printed(tmp_path):
+    r = qlap("run", "--headless", "--quiet", "--placement", "sync", "--world", WORLD,
+             "--steps", "1500", "--babble-steps", "500", "--seed", "4", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    m = re.search(r"^run directory: (runs/core2d-\d{8}-\d{6}-s4)$", r.stdout, re.M)
+    assert m, r.stdout[:500]
+    run = tmp_path / m[1]
+    assert (run / "summary.json").is_file() and (run / "knowledge.json").is_file()
+    assert (run / "checkpoints" / "final" / "agent.json").is_file()
+    assert [line["step"] for line in metrics(run)] == [1000, 1500]
+    assert f"wrote {m[1]}/" in r.stdout.split("run directory:")[-1]     # printed at the end
+    assert not (tmp_path / "qlap-checkpoints").exists()
+
+
+# --------------------------------------------------------------------------- retention, final
+def test_retention_keeps_the_newest_n_and_final_links_to_the_last(tmp_path):
+    from qlap_runtime.analysis.runs import find_checkpoints, load_knowledge
+    from qlap_runtime.analysis.timeline import knowledge_timeline
+    from qlap_runtime.cli import main
+
+    run = tmp_path / "run"
+    agent, _ = sync_run(run, 4000, keep=2)
+    ck = run / "checkpoints"
+    assert sorted(p.name for p in ck.iterdir()) == ["final", "step-0003000", "step-0004000"]
+    assert (ck / "final").is_symlink() and os.readlink(ck / "final") == "step-0004000"
+    final = load_agent(ck / "final")
+    assert json.dumps(final.knowledge()) == json.dumps(agent.knowledge())
+    assert [(c.name, c.step) for c in find_checkpoints(run, "run")] == [
+        ("step-0003000", 3000), ("step-0004000", 4000)]
+    assert [p.step for p in knowledge_timeline(run)] == [3000, 4000]
+    assert load_knowledge(ck / "final")["step"] == 3999
+    assert main(["show", str(ck / "final")]) == 0
+    assert main(["eval", "--world", WORLD, "--checkpoint", str(ck / "final"),
+                 "--task", "move_block", "--trials", "2"]) == 0
+    assert main(["report", str(run)]) == 0
+    # resume from final (a link) continues the run
+    more, _ = sync_run(run, 1000, keep=2, agent=load_agent(ck / "final"))
+    assert more.step_count == 4999
+    assert sorted(p.name for p in ck.iterdir()) == ["final", "step-0004000", "step-0005000"]
+    assert os.readlink(ck / "final") == "step-0005000"
+
+
+def test_final_is_a_directory_when_it_differs_and_a_marker_where_links_fail(tmp_path,
+                                                                            monkeypatch):
+    from qlap_runtime.analysis.runs import find_checkpoints, load_knowledge
+
+    run = tmp_path / "odd"
+    sync_run(run, 2500)                          # the last step-N (2000) is not the final state
+    final = run / "checkpoints" / "final"
+    assert final.is_dir() and not final.is_symlink()
+    assert [c.name for c in find_checkpoints(run, "odd")] == [
+        "step-0001000", "step-0002000", "final"]
+
+    none = tmp_path / "none"
+    sync_run(none, 2000, keep=0)                 # no periodic checkpoints: final is a copy
+    assert sorted(p.name for p in (none / "checkpoints").iterdir()) == ["final"]
+    assert (none / "checkpoints" / "final").is_dir()
+
+    def no_links(*a, **k):
+        raise OSError(errno.EPERM, "links not supported")
+
+    monkeypatch.setattr(os, "symlink", no_links)
+    marked = tmp_path / "marked"
+    agent, _ = sync_run(marked, 2000)
+    final = marked / "checkpoints" / "final"
+    assert final.is_file() and final.read_text().split() == ["qlap-checkpoint-link",
+                                                             "step-0002000"]
+    assert json.dumps(load_agent(final).knowledge()) == json.dumps(agent.knowledge())
+    assert [c.step for c in find_checkpoints(marked, "marked")] == [1000, 2000]
+    (marked / "knowledge.json").unlink()
+    assert load_knowledge(marked)["step"] == 1999
+
+
+# --------------------------------------------------------------------------- compact format
+def test_rows_table_is_exact_for_nan_and_negative_zero():
+    a = np.array([[0.0, -0.0, np.nan], [1.5, np.inf, -np.inf], [0.0, -0.0, np.nan]])
+    b = np.array([[1.5, np.inf, -np.inf], [2.0, 3.0, 4.0]])
+    packed = _pack_rows({"a": a, "b": b, "c": np.arange(3)}, ["a", "b"])
+    assert packed["_rows"].shape == (3, 3)                 # 5 rows, 3 distinct
+    back = _unpack_rows(dict(packed))
+    assert back["a"].tobytes() == a.tobytes() and back["b"].tobytes() == b.tobytes()
+    assert np.array_equal(back["c"], np.arange(3))
+
+
+def _write_older(src: Path, dst: Path, version: int) -> None:
+    """The checkpoint of ``src`` as an older writer left it. Version 1: every array in the npz
+    under its own name, the plans' Q-tables in indented agent.json; version 2: compact, the
+    Q-tables in agent.npz as they are, an npz entry per DBN or plan array."""
+    from qlap_runtime.qlap.checkpoint import _read_npz, _ungroup, _unpack_q
+    from qlap_runtime.qlap.mdp import q_to_state
+
+    dst.mkdir()
+    for name in ("learner", "agent"):
+        meta = json.loads((src / f"{name}.json").read_text())
+        arrays = _ungroup(_read_npz(src / f"{name}.npz"))
+        if version == 1:
+            arrays = _unpack_rows(arrays)
+        meta["version"] = version
+        if name == "agent":
+            for plan in meta["plans"]:
+                pid = plan["id"]
+                q = _unpack_q(tuple(plan.pop("q_shape")), arrays.pop(f"plan.{pid}.q_na"),
+                              arrays.pop(f"plan.{pid}.q_values"))
+                if version == 1:
+                    plan["q"] = q_to_state(q)
+                else:
+                    arrays[f"plan.{pid}.q"] = q
+        np.savez_compressed(dst / f"{name}.npz", **arrays)
+        (dst / f"{name}.json").write_text(json.dumps(meta, indent=1 if version == 1 else None))
+
+
+def _steps(agent, world, obs, first: int, last: int):
+    """Agent steps first..last-1 in ``world`` (as run_agent does, without its reset)."""
+    for t in range(first, last):
+        obs = world.step(agent.step(t, obs, discontinuity=bool(world.discontinuity)))
+    return obs
+
+
+def _state_bytes(agent) -> list[bytes]:
+    """What must come back byte for byte: Q-tables, traces, stored activations and calls,
+    the perception history, the random generator."""
+    out = [json.dumps(agent.knowledge()).encode(), json.dumps(agent.rng.bit_generator.state,
+                                                              sort_keys=True).encode(),
+           agent.learner.perception.hist_x.tobytes()]
+    for pid in sorted(agent.plans):
+        pl = agent.plans[pid]
+        out += [pl.q.tobytes(), pl.sarsa.e.tobytes(), pl.call_x.tobytes()]
+    for i in sorted(agent.learner.dbns):
+        out.append(agent.learner.dbns[i].act_x.tobytes())
+    return out
+
+
+def test_compact_checkpoints_resume_exactly_and_versions_1_and_2_still_load(tmp_path):
+    import worlds
+    from qlap_runtime.agent_run import params_for_world
+    from qlap_runtime.qlap.agent import Agent
+
+    def fresh():
+        world = worlds.make(WORLD)
+        agent = Agent(world.variables, params_for_world(world, Params(babble_steps=2000)),
+                      seed=1)
+        return agent, world, world.reset(seed=1)
+
+    straight, w0, obs0 = fresh()
+    _steps(straight, w0, obs0, 0, 10_000)
+    w0.close()
+    agent, world, obs = fresh()
+    obs = _steps(agent, world, obs, 0, 8000)
+    assert agent.plans, "the test needs plans (Q-tables) in the checkpoint"
+    save_agent(agent, tmp_path / "v3", WORLD)
+    loaded = load_agent(tmp_path / "v3")
+    assert _state_bytes(loaded) == _state_bytes(agent)
+    for version in (2, 1):                   # older checkpoints load to the very same state
+        _write_older(tmp_path / "v3", tmp_path / f"v{version}", version)
+        assert json.loads((tmp_path / f"v{version}" / "agent.json").read_text())["version"] \
+            == version
+        assert _state_bytes(load_agent(tmp_path / f"v{version}")) == _state_bytes(agent)
+    _steps(loaded, world, obs, 8000, 10_000)      # and the resumed agent goes on exactly
+    world.close()
+    assert json.dumps(loaded.knowledge()) == json.dumps(straight.knowledge())
+    meta = (tmp_path / "v3" / "agent.json").read_text()
+    assert "\n" not in meta and '"q"' not in meta                     # compact, Q in the npz
+    assert json.loads((tmp_path / "v3" / "learner.json").read_text())["version"] == 3
+    with np.load(tmp_path / "v3" / "learner.npz") as z:      # grouped by field; rows in xz
+        assert "dbn.*.cpt_s" in z.files and not any(k.startswith("dbn.0.") for k in z.files)
+        assert "_rows.npy.xz" in z.files
+    meta = json.loads(meta)
+    meta["version"] = 7
+    (tmp_path / "v3" / "agent.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError, match=r"qlap-agent version 7 is not supported"):
+        load_agent(tmp_path / "v3")
+
+
+# --------------------------------------------------------------------------- metrics log
+def test_metrics_log_is_the_same_in_the_sync_loop_embedded_actors_and_ui_driver(tmp_path):
+    # Same seed and lag: the actor placements learn exactly what the synchronous loop learns,
+    # so their metrics lines agree but for the times.
+    for name, placement in (("sync", "sync"), ("embedded", "embedded")):
+        r = qlap("run", "--headless", "--quiet", "--placement", placement, "--world", WORLD,
+                 "--steps", "3000", "--babble-steps", "1000", "--seed", "3", "--lag", "500",
+                 "--out", str(tmp_path / name))
+        assert r.returncode == 0, r.stderr
+    sync, embedded = metrics(tmp_path / "sync"), metrics(tmp_path / "embedded")
+    assert [line["step"] for line in sync] == [1000, 2000, 3000]
+    assert without_time(embedded) == without_time(sync)
+    assert all(line["steps_per_s"] > 0 for line in sync + embedded)
+    assert sync[-1]["babble_commands"] > 0 and sync[-1]["iac_babbles"] >= 0
+
+    # The UI's local driver (lag 0, as `qlap run` in a terminal) against the sync loop.
+    import worlds
+    from tui.driver import LocalDriver
+
+    sync_run(tmp_path / "sync0", 2500, seed=3)
+    world = worlds.make(WORLD)
+    d = LocalDriver(world, seed=3, params=PARAMS, steps=2500, out=tmp_path / "ui",
+                    world_spec=WORLD)
+    try:
+        d.start()
+        for _ in range(600):
+            if d.finished:
+                break
+            d.wait(0.1)
+        assert d.finished and d.error is None
+    finally:
+        d.stop()
+        world.close()
+    ui = metrics(tmp_path / "ui")
+    assert [line["step"] for line in ui] == [1000, 2000, 2500]
+    assert without_time(ui) == without_time(metrics(tmp_path / "sync0"))
+    assert (tmp_path / "ui" / "summary.json").is_file()
+    assert (tmp_path / "ui" / "checkpoints" / "final" / "agent.json").is_file()
+
+
+def test_metrics_log_survives_a_torn_line_and_a_resume(tmp_path):
+    from qlap_runtime.metrics import MetricsLog, read_metrics
+
+    agent, _ = sync_run(tmp_path / "run", 3000)
+    log = tmp_path / "run" / "metrics.jsonl"
+    whole = log.read_bytes()
+    log.write_bytes(whole + b'{"step":4000,"wall_')             # a crash mid-line
+    assert [line["step"] for line in read_metrics(log)] == [1000, 2000, 3000]
+    w = MetricsLog(log, agent, start=2000)                     # resumed from step 2000
+    w.write(2500, agent)
+    w.close()
+    assert [line["step"] for line in read_metrics(log)] == [1000, 2000, 2500]
+    assert log.read_bytes().endswith(b"}\n")
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="needs a POSIX pty")
+@pytest.mark.timeout(180)
+def test_the_ui_path_writes_its_run_directory_and_c_saves_into_it(tmp_path):
+    import time
+
+    from tests.tui.test_terminal import Terminal, _qlap_command
+
+    def wait_for(what, limit: float = 120.0) -> None:
+        deadline = time.monotonic() + limit
+        while not what():
+            assert term.proc.poll() is None, term.tail()
+            assert time.monotonic() < deadline, term.tail()
+            time.sleep(0.2)
+
+    term = Terminal([*_qlap_command(), "run", "--world", WORLD, "--steps", "2000", "--seed",
+                     "5"], cwd=tmp_path, columns=160, rows=48)
+    try:
+        # the agent process writes its outputs when the last step is done; the UI is up
+        wait_for(lambda: "Runtime" in term.text()
+                 and any((tmp_path / "runs").glob("*/summary.json")))
+        term.send(b"c")
+        wait_for(lambda: any((tmp_path / "runs").glob("*/checkpoints/step-*/agent.json")), 30)
+        term.send(b"q")
+        assert term.proc.wait(30) == 0, term.tail()
+        term._reader.join(5)
+        text = term.text()
+    finally:
+        term.close()
+    (run,) = (tmp_path / "runs").iterdir()
+    assert re.fullmatch(r"core2d-\d{8}-\d{6}-s5", run.name)
+    assert f"run directory: runs/{run.name}" in text and f"wrote runs/{run.name}/" in text
+    assert not (tmp_path / "qlap-checkpoints").exists()
+    saved = [p.name for p in (run / "checkpoints").iterdir() if p.name.startswith("step-")]
+    assert saved, "c saved no checkpoint into the run directory"
+    assert (run / "checkpoints" / "final" / "agent.json").is_file()
+    assert (run / "summary.json").is_file() and (run / "knowledge.json").is_file()
+    assert [line["step"] for line in metrics(run)][:2] == [1000, 2000]
+
+
+# --------------------------------------------------------------------------- qlap plot
+def test_qlap_plot_draws_metrics_and_the_curve(tmp_path):
+    from qlap_runtime.analysis.curve import CurveRow, write_rows
+    from qlap_runtime.cli import main
+
+    run = tmp_path / "run"
+    sync_run(run, 3000)
+    assert main(["plot", str(run)]) == 0
+    png = (run / "metrics.png").read_bytes()
+    assert png.startswith(b"\x89PNG")
+    rows = [CurveRow("run", s, "move_block", 1.0 + s / 1000, 0.2, 0.3, 10, 0, WORLD, "qlap",
+                     f"step-{s:07d}") for s in (1000, 2000, 3000)]
+    rows.append(CurveRow("random", None, "move_block", 0.5, 0.1, 0.1, 10, 0, WORLD, "random",
+                         ""))
+    write_rows(run / "curve.csv", rows)
+    assert main(["plot", str(run)]) == 0
+    assert (run / "metrics.png").read_bytes() != png            # now with the curve
+    r = qlap("plot", str(tmp_path))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "no metrics.jsonl" in r.stderr
+
+
+# --------------------------------------------------------------------------- progress lines
+def test_progress_lines_when_stdout_is_not_a_terminal_and_the_last_agrees(tmp_path):
+    r = qlap("run", "--headless", "--placement", "sync", "--world", WORLD, "--steps", "3000",
+             "--babble-steps", "1000", "--seed", "2", "--out", str(tmp_path / "run"))
+    assert r.returncode == 0, r.stderr
+    lines = re.findall(r"^step ([\d,]+)/3,000 .*$", r.stdout, re.M)
+    assert [s.replace(",", "") for s in lines] == ["1000", "2000", "3000"], r.stdout[:600]
+    last = re.search(r"^step 3,000/3,000 \(100%\)  ([\d,.]+) steps/s  DBNs (\d+)  plans (\d+)  "
+                     r"landmarks (\d+)  done in", r.stdout, re.M)
+    assert last, r.stdout[:600]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert float(last[1].replace(",", "")) == summary["steps_per_s"]
+    assert [int(x) for x in last.groups()[1:]] == [summary["dbns"], summary["plans"],
+                                                   summary["landmarks"]]
+    assert f"{summary['steps_per_s']} steps/s" in r.stdout
+    assert "━" not in r.stdout                                   # no progress-bar frame
+
+
+# --------------------------------------------------------------------------- --out errors
+def test_out_naming_a_file_is_a_one_line_error(tmp_path):
+    f = tmp_path / "file"
+    f.write_text("x")
+    r = qlap("run", "--headless", "--placement", "sync", "--world", WORLD, "--steps", "10",
+             "--out", str(f))
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"qlap run: --out {f}: exists and is not a directory"
+
+
+@pytest.mark.parametrize(("code", "text"), [(errno.EROFS, "Read-only file system"),
+                                            (errno.ENOSPC, "No space left on device")])
+def test_unwritable_out_is_a_one_line_error_before_the_run(tmp_path, monkeypatch, capsys,
+                                                           code, text):
+    from qlap_runtime import cli
+
+    def fail(*a, **k):
+        raise OSError(code, text)
+
+    if os.geteuid() != 0 and code == errno.EROFS:
+        (tmp_path / "ro").mkdir(mode=0o500)                    # really read-only
+        out = tmp_path / "ro" / "run"
+        text = "Permission denied"
+    else:
+        monkeypatch.setattr(os, "fsync", fail)                 # the probe file's write
+        out = tmp_path / "run"
+    rc = cli.main(["run", "--headless", "--placement", "sync", "--world", WORLD, "--steps",
+                   "100000", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.strip() == f"qlap run: --out {out}: cannot write there ({text})"
+    assert not (out / "metrics.jsonl").exists()
