@@ -587,8 +587,12 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
 
 
 def _print_written(out: Path) -> None:
-    print(f"\nwrote {out}/: knowledge.json, summary.json, metrics.jsonl, checkpoints/ "
-          f"(qlap plot {out} draws the metrics)")
+    from .analysis.plot import plot_run_if_possible
+
+    picture = plot_run_if_possible(out)
+    drawn = f", {picture.name}" if picture is not None else ""
+    print(f"\nwrote {out}/: knowledge.json, summary.json, metrics.jsonl{drawn}, checkpoints/ "
+          f"(qlap plot {out} draws them again, with a learning curve after qlap curve)")
 
 
 def _run_tui(args: argparse.Namespace) -> int:

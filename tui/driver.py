@@ -362,6 +362,9 @@ class LocalDriver:
         step, changes, path = self._last_saved
         same = path if (step, changes) == (agent.step_count, self._agent_changes) else None
         save_final_checkpoint(agent, self.out / "checkpoints", self.world_spec, same_as=same)
+        from qlap_runtime.analysis.plot import plot_run_if_possible
+
+        plot_run_if_possible(self.out)                   # metrics.png beside the metrics log
 
     def _pace(self, now: float) -> None:
         """Realtime clock: tick n starts at t0 + n / speed; count late and missed ticks."""

@@ -20,7 +20,7 @@ from ..metrics import METRICS_FILE, read_metrics
 from ..qlap.checkpoint import atomic_write_bytes
 from .runs import AnalysisError
 
-__all__ = ["PLOT_FILE", "plot_run"]
+__all__ = ["PLOT_FILE", "plot_run", "plot_run_if_possible"]
 
 PLOT_FILE = "metrics.png"
 
@@ -159,3 +159,12 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None) -> Path:
     path = Path(out) if out is not None else run_dir / PLOT_FILE
     atomic_write_bytes(path, buf.getvalue())
     return path
+
+
+def plot_run_if_possible(run_dir: str | Path) -> Path | None:
+    """:func:`plot_run` at the end of a run: the picture, or None (with no metrics yet, or no
+    matplotlib installed) — a run's results never depend on its picture."""
+    try:
+        return plot_run(run_dir)
+    except (AnalysisError, ImportError, OSError):
+        return None
