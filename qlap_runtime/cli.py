@@ -8,8 +8,9 @@ import sys
 from pathlib import Path
 
 DEFAULT_ACTOR_LAG = 500
-"""Default batch lag L of the actor placements (DESIGN.md §4: batches pipelined, the step chain
-never waits for them); the synchronous loop defaults to L = 0, Algorithm 2 to the letter."""
+"""Default batch lag L of the actor placements (docs/architecture.md §2: batches pipelined, the
+step chain never waits for them); the synchronous loop defaults to L = 0, Algorithm 2 to the
+letter."""
 
 
 def _positive(text: str) -> int:
@@ -121,8 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="record every bus message of the run to an MCAP file "
                           "(embedded and processes placements)")
     run.add_argument("--lag", type=int, default=None,
-                     help="batch lag L in steps (DESIGN.md §4): a batch computed from the data "
-                          "up to t is applied at t + L while the step chain runs on; 0 = "
+                     help="batch lag L in steps (docs/architecture.md §2): a batch computed "
+                          "from the data up to t is applied at t + L while the step chain runs on; 0 = "
                           "Algorithm 2 to the letter (default: 500 for embedded and processes, "
                           "0 for sync)")
     run.add_argument("--babble-steps", type=int, default=None,

@@ -1,4 +1,4 @@
-"""The trio <-> Zenoh bridge (DESIGN.md §5; docs/bus.md).
+"""The trio <-> Zenoh bridge (docs/architecture.md §3; docs/bus.md).
 
 Zenoh callbacks run on Zenoh's threads (or, for a put in the same session, synchronously in the
 putting thread). They never touch actor state: they append ``(key, payload, receive time)`` to a

@@ -1,4 +1,4 @@
-"""Zenoh session configurations for the three placements (DESIGN.md §4, §5; docs/bus.md).
+"""Zenoh session configurations for the three placements (docs/architecture.md §2–3; docs/bus.md).
 
 Every config built here has multicast scouting and gossip switched off and explicit endpoints:
 

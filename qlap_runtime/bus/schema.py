@@ -1,4 +1,4 @@
-"""Every message that crosses the bus, in one module (DESIGN.md §3 rule 5; docs/bus.md).
+"""Every message that crosses the bus, in one module (docs/architecture.md §1 rule 5; docs/bus.md).
 
 A message is a frozen dataclass with a docstring under each field and a ``version`` field (the
 schema version of its type, checked on decode). The topic of the key expression says which type
