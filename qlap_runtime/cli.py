@@ -123,9 +123,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "(embedded and processes placements)")
     run.add_argument("--lag", type=int, default=None,
                      help="batch lag L in steps (docs/architecture.md §2): a batch computed "
-                          "from the data up to t is applied at t + L while the step chain runs on; 0 = "
-                          "Algorithm 2 to the letter (default: 500 for embedded and processes, "
-                          "0 for sync)")
+                          "from the data up to t is applied at t + L while the step chain runs "
+                          "on; 0 = Algorithm 2 to the letter (default: 500 for embedded and "
+                          "processes, 0 for sync)")
     run.add_argument("--babble-steps", type=int, default=None,
                      help="length of the initial motor-babbling period (default: 20000, §6.1)")
     run.add_argument("--resume", type=Path, default=None,
