@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import sys
+
+import numpy as np
+
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
 from qlap_runtime.bus.replay import ReplayLog
@@ -41,6 +45,22 @@ def apply_landmark_ops(per: Perception, deltas) -> None:
                 per.add_landmark(int(var), Landmark(float(lb), float(ub), int(step), source))
 
 
+def _as_sent(per: Perception, t: int, msg, exc: InvalidObservation) -> InvalidObservation:
+    """The reason the synchronous agent gives: the world actor sends ±inf as ±float max
+    (actors/world.py), so the rejection is checked again with them restored (the state is
+    unchanged by a rejected observation)."""
+    x = per.vector(msg.values)
+    huge = np.abs(x) == sys.float_info.max
+    if not huge.any():
+        return exc
+    x[huge] = np.copysign(np.inf, x[huge])
+    try:
+        per.perceive(t, x, copy=False, discontinuity=msg.discontinuity)
+    except InvalidObservation as again:
+        return again
+    return exc
+
+
 async def run(session, ctx: RunContext) -> dict:
     specs, _ = world_variables(ctx.world)
     table = VariableTable.from_specs(specs)
@@ -75,6 +95,7 @@ async def run(session, ctx: RunContext) -> dict:
                     p = per.perceive(t, per.vector(msg.values), copy=False,
                                      discontinuity=msg.discontinuity)
                 except InvalidObservation as exc:
+                    exc = _as_sent(per, t, msg, exc)
                     rejected_obs += 1
                     deltas.book.skipped.add(t)
                     counter.reject(keys.key(ctx.run_id, "sense"), str(exc))

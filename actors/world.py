@@ -5,6 +5,14 @@ Publishes ``sense(t)`` — the world's observation at t plus the motor values be
 recent ``sense`` messages in a replay log for a perception actor restarted from a snapshot.
 The world itself is not restartable: its physics state is not snapshotted (docs/runtime.md).
 
+A value the agent would reject (NaN, ±inf, |x| > ``MAX_ABS_VALUE``) is counted here
+(``rejected_senses``) and published in a form the bus can carry — a NaN left out (the agent
+reads a missing value as NaN), ±inf as ±``sys.float_info.max`` — so that the perception actor
+rejects ``sense(t)`` as the synchronous loop does and every actor skips step t. A world whose
+``step`` raises ends the run like a ``quit`` after the last step whose motor was chosen (the
+other actors write what was learned), then :class:`~qlap_runtime.agent_run.WorldFailed` is
+raised.
+
 It drives the clock, so it obeys the UI's clock commands on ``control`` (docs/runtime.md,
 Controls) between two steps: ``pause``, ``resume``, ``step {"n": k}``, ``speed {"steps_per_s":
 x}`` (lockstep: pace; realtime: tick rate) and ``quit``, after which it publishes the end
@@ -14,18 +22,54 @@ only delays steps, so a lockstep run learns the same whether paused or not.
 
 from __future__ import annotations
 
+import math
+import sys
 import time
 
 import trio
 
 from qlap_runtime.bus import keys
-from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
+from qlap_runtime.bus.bridge import (
+    AliveWatcher,
+    Publisher,
+    RejectionCounter,
+    TrioSubscriber,
+    declare_alive,
+)
 from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import Control, Sense, WorldView
+from qlap_runtime.qlap.perception import MAX_ABS_VALUE
 
 from .common import ControlError, Controls, RunContext, RunControl, StepInbox
 
 NAME = "world"
+OTHERS_END_S = 120.0
+"""How long a failed world waits for the other actors to write their outputs."""
+
+
+def bus_values(values: dict, available_from: dict[str, int], t: int) -> tuple[dict, bool]:
+    """``values`` as ``sense(t)`` can carry them, and whether the agent rejects them (a NaN,
+    ±inf or |x| > ``MAX_ABS_VALUE`` of an available variable). A NaN is left out, ±inf becomes
+    ±``sys.float_info.max``: the perception actor then sees what the synchronous agent sees."""
+    bad = False
+    out = values
+    for k, v in values.items():
+        try:
+            if abs(v) <= MAX_ABS_VALUE:     # False on NaN: the fast path of every step
+                continue
+            fv = float(v)
+        except (TypeError, ValueError):
+            continue                        # not a number: the perception actor names it
+        if out is values:
+            out = dict(values)
+        if math.isnan(fv):
+            del out[k]
+            bad = bad or t >= available_from.get(k, 0)
+        else:
+            if math.isinf(fv):
+                out[k] = math.copysign(sys.float_info.max, fv)
+            bad = True
+    return out, bad
 
 
 async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict:
@@ -37,6 +81,9 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
     try:
         motors = [v.name for v in world.variables if getattr(v.kind, "value", v.kind) == "motor"]
         applied = dict.fromkeys(motors, 0.0)
+        available = {v.name: int(getattr(v, "available_from", 0) or 0)
+                     for v in world.variables}
+        failed = None
         obs = world.reset(seed=ctx.seed)
         with declare_alive(session, ctx.run_id, NAME), \
                 TrioSubscriber(session, keys.key(ctx.run_id, "motor"), counter=counter) as sub, \
@@ -114,6 +161,9 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                     tick += 1
                 values = dict(obs)
                 values.update(applied)
+                values, bad = bus_values(values, available, t)
+                if bad:
+                    stats["rejected_senses"] = stats.get("rejected_senses", 0) + 1
                 sense = Sense(t, values, bool(getattr(world, "discontinuity", False)))
                 pub.put(sense)
                 replay.append(t, sense)             # for a perception actor restarted later
@@ -131,13 +181,24 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 stats["wait_s"] += time.perf_counter() - t0
                 if motor is not None:
                     applied = dict(motor.values)
-                obs = world.step(applied)
+                try:
+                    obs = world.step(applied)
+                except Exception as exc:    # end the run after t (its motor was chosen)
+                    from qlap_runtime.agent_run import WorldFailed
+
+                    failed = WorldFailed(ctx.world, t, exc)
+                    stats["world_error"] = str(failed)
+                    stats["steps"] += 1
+                    last = t
+                    rc.quit = True
+                    break
                 now = time.perf_counter()
                 if now - last_view >= 0.1:                    # the UI's world panel, 10 Hz
                     last_view = now
                     view.put(WorldView(t, str(getattr(world, "name", ctx.world)),
                                        world.render_text(44, 14),
-                                       {k: float(v) for k, v in obs.items()}, applied, {}))
+                                       {k: float(v) for k, v in obs.items()
+                                        if math.isfinite(v)}, applied, {}))
                 stats["steps"] += 1
                 rc.stepped()
                 last = t
@@ -153,6 +214,9 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
     finally:
         world.close()
     stats["rejected"] = counter.snapshot().total
+    if failed is not None:
+        await _after_failure(session, ctx, stats)
+        raise failed
     if ctx.realtime and lateness:
         ms = sorted(x * 1e3 for x in lateness)
         stats.update(hz=1.0 / period, late_ticks=stats.get("late_ticks", 0),
@@ -162,3 +226,28 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                      lateness_max_ms=round(ms[-1], 3))
     return stats
 
+
+
+async def _after_failure(session, ctx: RunContext, stats: dict) -> None:
+    """The world failed and published the end marker: wait for the other actors to end (their
+    outputs written), then add the failure to the run's summary.json."""
+    with AliveWatcher(session, ctx.run_id) as watcher, trio.move_on_after(OTHERS_END_S):
+        with trio.move_on_after(2.0):       # the tokens that exist come first (history)
+            await watcher.wait_until(lambda alive: bool(alive - {NAME}))
+        await watcher.wait_until(lambda alive: not (alive - {NAME}))
+    if ctx.out is None:
+        return
+    import json
+    from pathlib import Path
+
+    from qlap_runtime.qlap.checkpoint import atomic_write_json
+
+    out = Path(ctx.out)
+    executor = out / "actors" / "executor.json"
+    try:
+        summary = json.loads(executor.read_text()) if executor.exists() else {}
+    except (OSError, ValueError):
+        summary = {}
+    summary.update(placement=ctx.extra.get("placement"), world=ctx.world, seed=ctx.seed,
+                   steps=stats["steps"], world_error=stats["world_error"], world_actor=stats)
+    atomic_write_json(out / "summary.json", summary)

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from .cli import CliError
 from .metrics import METRICS_EVERY, METRICS_FILE, MetricsLog, knowledge_counts
 from .qlap import Params
 from .qlap.agent import Agent
@@ -29,6 +30,18 @@ from .qlap.checkpoint import (
 from .qlap.perception import InvalidObservation
 
 ProgressFn = Callable[[int, Agent], None]
+
+
+class WorldFailed(CliError):
+    """A world's ``step`` raised: the run stops after the outputs of what was learned so far
+    are written; the command line reports it in one line (exit status 1)."""
+
+    def __init__(self, world: str, step: int, exc: BaseException) -> None:
+        detail = " ".join(str(exc).split()) or "(no message)"
+        super().__init__(f"world {world} failed at step {step}: {type(exc).__name__}: "
+                         f"{detail[:300]}; what was learned so far is written", code=1)
+        self.world = world
+        self.step = step
 
 
 def params_for_world(world: Any, base: Params | None = None) -> Params:
@@ -83,7 +96,9 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     metrics line (written or not).
 
     An observation the agent rejects (NaN, unknown variable) is counted and logged in the
-    summary, and the agent keeps its previous motor command; the run goes on.
+    summary, and the agent keeps its previous motor command; the run goes on. A world whose
+    ``step`` raises stops the run: the outputs of the steps done are written, then
+    :class:`WorldFailed` is raised.
     """
     params = params_for_world(world, params)
     agent = agent or Agent(world.variables, params, seed=seed)
@@ -97,6 +112,8 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
                          start=start, every=metrics_every, on_line=on_metrics) \
         if out is not None or on_metrics is not None else None
     last_saved: tuple[int, Path | None] = (-1, None)
+    failed: WorldFailed | None = None
+    done = steps
     t0 = time.perf_counter()
     try:
         for t in range(start, start + steps):
@@ -105,7 +122,12 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
                                    discontinuity=bool(getattr(world, "discontinuity", False)))
             except InvalidObservation as exc:
                 rejected.append(f"step {t}: {exc}")
-            obs = world.step(motor)
+            try:
+                obs = world.step(motor)
+            except Exception as exc:        # the world broke: keep what was learned up to t
+                failed = WorldFailed(str(world_spec or type(world).__name__), t, exc)
+                done = t - start + 1
+                break
             if progress is not None:
                 progress(t, agent)
             if metrics is not None:
@@ -115,17 +137,21 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
                                                       keep_checkpoints))
         wall = time.perf_counter() - t0
         if metrics is not None:
-            metrics.finish(start + steps, agent)
+            metrics.finish(start + done, agent)
     finally:
         if metrics is not None:
             metrics.close()
-    summary = summary_of(agent, world, seed, steps, wall, rejected)
+    summary = summary_of(agent, world, seed, done, wall, rejected)
+    if failed is not None:
+        summary["world_error"] = str(failed)
     if out is not None:
         out = Path(out)
         atomic_write_json(out / "knowledge.json", agent.knowledge())
         atomic_write_json(out / "summary.json", summary)
-        same = last_saved[1] if last_saved[0] == start + steps - 1 else None
+        same = last_saved[1] if last_saved[0] == start + done - 1 else None
         save_final_checkpoint(agent, out / "checkpoints", world_spec, same_as=same)
+    if failed is not None:
+        raise failed
     return agent, summary
 
 

@@ -296,11 +296,91 @@ def read_checkpoint(directory: str | Path, name: str = "learner"
 def load_learner(directory: str | Path, name: str = "learner") -> ModelLearner:
     """Rebuild a learner that continues exactly as the saved one would."""
     meta, arrays = read_checkpoint(directory, name)
+    check_learner(meta, arrays, Path(directory) / name)
     try:
         return restore_learner(meta, arrays)
-    except (KeyError, ValueError, TypeError, IndexError) as exc:
+    except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
         raise CheckpointError(f"{Path(directory) / name}: inconsistent checkpoint "
                               f"({type(exc).__name__}: {exc})") from None
+
+
+def _bad(where: Path, field: str, why: str) -> CheckpointError:
+    return CheckpointError(f"{where}: inconsistent checkpoint: {field} {why}")
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_event(where: Path, field: str, ev: Any, n: int) -> None:
+    if not (isinstance(ev, list | tuple) and len(ev) == 3 and all(map(_is_int, ev))):
+        raise _bad(where, field, f"is not an event [variable, value, direction]: {ev!r}")
+    if not 0 <= ev[0] < n:
+        raise _bad(where, field, f"names variable {ev[0]}, not one of the {n} variables")
+
+
+def check_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray], where: Path) -> None:
+    """The semantic checks of a learner checkpoint (variables named by index exist, scalars
+    in range, array shapes): a :class:`CheckpointError` naming the field, not an IndexError
+    later."""
+    try:
+        n = len(meta["variables"])
+        params = Params.from_dict(meta["params"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise _bad(where, "variables/params", f"unreadable ({type(exc).__name__}: {exc})"
+                   ) from None
+    k = meta.get("k")
+    if not _is_int(k) or not 1 <= k <= params.event_history:
+        raise _bad(where, "k", f"must be an integer in 1..{params.event_history} "
+                               f"(params.event_history), got {k!r}")
+    for field in ("step", "next_id"):
+        if not _is_int(meta.get(field)):
+            raise _bad(where, field, f"must be an integer, got {meta.get(field)!r}")
+    shapes = {"perception.prev_x": (n,), "perception.prev_q": (n,)}
+    for key, shape in shapes.items():
+        if key in arrays and arrays[key].shape != shape:
+            raise _bad(where, key, f"has shape {arrays[key].shape}, expected {shape}")
+    hx, hq = arrays.get("perception.hist_x"), arrays.get("perception.hist_q")
+    for key, a in (("perception.hist_x", hx), ("perception.hist_q", hq)):
+        if a is not None and (a.ndim != 2 or a.shape[1] != n):
+            raise _bad(where, key, f"has shape {a.shape}, expected (rows, {n})")
+    if hx is not None and hq is not None and hx.shape != hq.shape:
+        raise _bad(where, "perception.hist_q", f"has shape {hq.shape}, hist_x {hx.shape}")
+    dbns = meta.get("dbns")
+    if not isinstance(dbns, list):
+        raise _bad(where, "dbns", "is not a list")
+    for j, d in enumerate(dbns):
+        if not isinstance(d, dict):
+            raise _bad(where, f"dbns[{j}]", "is not an object")
+        _check_event(where, f"dbns[{j}].antecedent", d.get("antecedent"), n)
+        _check_event(where, f"dbns[{j}].consequent", d.get("consequent"), n)
+        ctx = d.get("context")
+        if not isinstance(ctx, list | tuple) or not all(_is_int(c) and 0 <= c < n for c in ctx):
+            raise _bad(where, f"dbns[{j}].context", f"must list variables in 0..{n - 1}, got "
+                                                    f"{ctx!r}")
+
+
+def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> None:
+    """The semantic checks of an agent checkpoint (see :func:`check_learner`)."""
+    motor = meta.get("motor")
+    names = {v.name for v in learner.table if getattr(v.kind, "value", v.kind) == "motor"}
+    if not isinstance(motor, dict):
+        raise _bad(where, "motor", f"must map motor names to numbers, got {motor!r}")
+    for k, v in motor.items():
+        if k not in names:
+            raise _bad(where, "motor", f"names {k!r}, not a motor ({', '.join(sorted(names))})")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
+            raise _bad(where, f"motor.{k}", f"must be a finite number, got {v!r}")
+    plans = meta.get("plans")
+    if not isinstance(plans, list):
+        raise _bad(where, "plans", "is not a list")
+    for j, d in enumerate(plans):
+        dbn_id = d.get("dbn_id") if isinstance(d, dict) else None
+        if dbn_id not in learner.dbns:
+            raise _bad(where, f"plans[{j}].dbn_id", f"names no DBN of the learner: {dbn_id!r}")
+    for field in ("step_count", "next_plan_id", "hold_until"):
+        if not _is_int(meta.get(field)):
+            raise _bad(where, field, f"must be an integer, got {meta.get(field)!r}")
 
 
 def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> ModelLearner:
@@ -460,6 +540,7 @@ def load_agent(directory: str | Path) -> Any:
         raise CheckpointError(f"{jpath}: {AGENT_FORMAT} version {meta.get('version')!r} is "
                               f"not supported (this build reads versions "
                               f"{', '.join(map(str, AGENT_READABLE_VERSIONS))})")
+    check_agent(meta, learner, jpath)
     try:
         agent = Agent(learner.table, learner.params)
         agent.learner = learner
@@ -506,7 +587,7 @@ def load_agent(directory: str | Path) -> Any:
         agent.self_vars = set(meta["self_vars"])
         agent.step_count = int(meta["step_count"])
         agent._seen_applied = int(meta["seen_applied"])
-    except (KeyError, ValueError, TypeError, IndexError) as exc:
+    except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
         raise CheckpointError(f"{directory}: inconsistent agent checkpoint "
                               f"({type(exc).__name__}: {exc})") from None
     return agent

@@ -23,9 +23,14 @@ from .params import Params
 from .quantity import Landmark, QuantitySpace
 from .variables import Event, Kind, VariableTable
 
+MAX_ABS_VALUE = 1e12
+"""The largest magnitude a world's value may have: beyond it (±1e308, an exploded simulation)
+an observation is rejected like a NaN (derivatives and landmarks would overflow)."""
+
 
 class InvalidObservation(ValueError):
-    """An observation with a NaN/infinite value, an unknown variable or a bad nominal value."""
+    """An observation with a NaN/infinite or huge value (|x| > :data:`MAX_ABS_VALUE`), an
+    unknown variable or a bad nominal value."""
 
 
 @dataclass(frozen=True)
@@ -368,14 +373,18 @@ class Perception:
     def _validate(self, step: int, x: np.ndarray) -> bool:
         """Check one row; returns True when every world variable is present and finite."""
         world = x[self._world_idx]
-        finite = bool(np.isfinite(world).all())
+        finite = bool((np.abs(world) <= MAX_ABS_VALUE).all())    # False on NaN, ±inf, huge
         if not finite:
-            for i in self._world_idx[~np.isfinite(world)]:
+            for i in self._world_idx[~(np.abs(world) <= MAX_ABS_VALUE)]:
                 v = self.table[i]
                 if np.isnan(x[i]) and step < v.available_from:
                     continue
+                if np.isfinite(x[i]):
+                    raise InvalidObservation(
+                        f"variable {v.name!r} has value {float(x[i])!r} beyond "
+                        f"±{MAX_ABS_VALUE:g} at step {step}")
                 raise InvalidObservation(
-                    f"variable {v.name!r} has non-finite value {x[i]!r} at step {step}")
+                    f"variable {v.name!r} has non-finite value {float(x[i])!r} at step {step}")
         if len(self._nominal_idx) and not (x[self._nominal_idx]
                                            == self.prev_x[self._nominal_idx]).all():
             vals = x[self._nominal_idx]
