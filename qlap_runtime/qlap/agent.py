@@ -22,6 +22,7 @@ import numpy as np
 
 from .actions import (
     ActionKey,
+    ActionStats,
     ActionTable,
     motor_reachable,
     motor_value_for,
@@ -638,14 +639,15 @@ class Agent:
         by_action: dict[ActionKey, list[Plan]] = {}
         for plan in self.plans.values():
             by_action.setdefault(plan.action, []).append(plan)
+        q_list = p.q.tolist()
         for key in sorted(by_action):
-            if self._achieved(key, p):
+            if q_list[key[0]] == key[1]:           # achieved now (:meth:`_achieved`)
                 continue
-            plans = self._usable_plans(key, p, by_action[key])
+            plans = self._usable_plans(key, p, by_action[key], q_list)
             if not plans:
                 continue
             stats = self.actions[key]
-            w = iac_weight(stats.history, self.params)
+            w = self._iac_weight(stats)
             if w is None:                 # fewer than 50 calls: eq. 6.2 with the chosen plan
                 idx = self._pick_plan(plans, p)
                 rel_os = None if idx is None else \
@@ -661,13 +663,28 @@ class Agent:
     def _achieved(self, key: ActionKey, p: Percept) -> bool:
         return int(p.q[key[0]]) == key[1]
 
-    def _usable_plans(self, key: ActionKey, p: Percept, plans: list[Plan]) -> list[Plan]:
+    def _iac_weight(self, stats: ActionStats) -> float | None:
+        """:func:`~.curiosity.iac_weight` of an action, cached until its next record (the
+        history changes only in :meth:`ActionStats.record`, which counts a call)."""
+        cache = self.__dict__.setdefault("_iac_cache", {})
+        key = id(stats)
+        hit = cache.get(key)
+        if hit is not None and hit[0] is stats and hit[1] is stats.history \
+                and hit[2] == stats.calls and hit[3] == len(stats.history):
+            return hit[4]
+        w = iac_weight(stats.history, self.params)
+        cache[key] = (stats, stats.history, stats.calls, len(stats.history), w)
+        return w
+
+    def _usable_plans(self, key: ActionKey, p: Percept, plans: list[Plan],
+                      q_list: list[int] | None = None) -> list[Plan]:
         """Plans of a(v, q) usable in this state: their state is known (no plan variable
         without a value, as on the step after a discontinuity), and magnitude plans from the
-        current side."""
+        current side. ``q_list`` is ``p.q.tolist()`` when the caller has it."""
         var, q = key
+        full = p.q.tolist() if q_list is None else q_list
         known = sorted((pl for pl in plans
-                        if pl.space is not None and pl.space.index_from_full(p.q) is not None),
+                        if pl.space is not None and pl.space.index_from_full(full) is not None),
                        key=lambda pl: pl.id)
         if self.table[var].kind is not Kind.MAGNITUDE:
             return known

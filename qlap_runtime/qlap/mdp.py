@@ -78,10 +78,15 @@ class PlanStateSpace:
     @property
     def strides(self) -> tuple[int, ...]:
         """Mixed-radix place value of each variable (the last variable has stride 1)."""
+        cached = self.__dict__.get("_strides")
+        if cached is not None:
+            return cached
         out = [1] * len(self.sizes)
         for i in range(len(self.sizes) - 2, -1, -1):
             out[i] = out[i + 1] * self.sizes[i + 1]
-        return tuple(out)
+        out_t = tuple(out)
+        object.__setattr__(self, "_strides", out_t)
+        return out_t
 
     def __contains__(self, var: object) -> bool:
         return var in self.vars
@@ -119,23 +124,40 @@ class PlanStateSpace:
         return tuple(reversed(out))
 
     def all_values(self) -> np.ndarray:
-        """Array ``(n_states, n_vars)`` whose row s is ``values(s)``."""
-        if not self.sizes:
-            return np.zeros((1, 0), dtype=np.int64)
-        grids = np.unravel_index(np.arange(self.n_states), self.sizes)
-        return np.stack(grids, axis=1).astype(np.int64)
+        """Array ``(n_states, n_vars)`` whose row s is ``values(s)``.
 
-    def index_from_full(self, full: Sequence[int]) -> int | None:
+        Computed once per space and shared: the array is read-only (copy it to modify).
+        """
+        cached = self.__dict__.get("_all_values")
+        if cached is not None:
+            return cached
+        if not self.sizes:
+            out = np.zeros((1, 0), dtype=np.int64)
+        else:
+            grids = np.unravel_index(np.arange(self.n_states), self.sizes)
+            out = np.stack(grids, axis=1).astype(np.int64)
+        out.flags.writeable = False
+        object.__setattr__(self, "_all_values", out)
+        return out
+
+    def index_from_full(self, full: Sequence[int] | np.ndarray) -> int | None:
         """Plan state of the agent's full qualitative vector (indexed by variable number).
 
         None if a plan variable has no valid value there (e.g. −1, not yet available, §7.5).
+        A plain list is fastest (callers looking up many plans convert the vector once).
         """
-        vals = []
+        if isinstance(full, np.ndarray):
+            full = full.tolist()
+        n_full = len(full)
+        idx = 0
         for v, n in zip(self.vars, self.sizes, strict=True):
-            if v >= len(full) or not 0 <= full[v] < n:
+            if v >= n_full:
                 return None
-            vals.append(int(full[v]))
-        return self.index(vals)
+            q = full[v]
+            if not 0 <= q < n:
+                return None
+            idx = idx * n + int(q)
+        return idx
 
     def with_variable(self, var: int, size: int) -> tuple[PlanStateSpace, np.ndarray]:
         """Append ``var`` (§5.4.2): the new space and ``state_map`` (new state → old state).
@@ -160,7 +182,7 @@ class PlanStateSpace:
         sizes = list(self.sizes)
         sizes[pos] = int(new_size)
         new = PlanStateSpace(self.vars, tuple(sizes))
-        vals = new.all_values()
+        vals = new.all_values().copy()
         vals[:, pos] = new_to_old[vals[:, pos]]
         return new, _ravel(vals, self.sizes)
 
@@ -422,6 +444,7 @@ class TransitionModel:
         next2 = next1.copy()
         p1 = np.zeros((n_s, n_a))
         applicable = np.zeros((n_s, n_a), dtype=bool)
+        recipe: list[tuple[bool, np.ndarray | None]] = []  # per column: from rel(r, s)?, zeroed
         n_ante = 0
         for j, a in enumerate(actions):
             ok = alive.copy()
@@ -431,6 +454,7 @@ class TransitionModel:
                 ok &= x_holds
                 next1[:, j] = states + (y_ev.value - y_now) * strides[y_pos]
                 p1[:, j] = rel_r
+                recipe.append((True, None))
             else:
                 pos = space.position(a.var)
                 if not 0 <= a.value < space.sizes[pos]:
@@ -447,14 +471,17 @@ class TransitionModel:
                     if spec.magnitude_plan:
                         ok &= ~x_holds  # §5.3.1 rule 2
                         next1[:, j], p1[:, j] = moved, rel_a[j]
+                        recipe.append((False, None))
                     else:
                         next1[:, j] = moved + (y_ev.value - y_now) * strides[y_pos]
                         next2[:, j] = moved
                         p1[:, j] = rel_r
+                        wrong_x = None
                         if spec.antecedent_on_magnitude:  # the wrong side
                             d = x_ev.direction
-                            wrong = now > x_ev.value if d > 0 else now < x_ev.value
-                            p1[wrong, j] = 0.0
+                            wrong_x = now > x_ev.value if d > 0 else now < x_ev.value
+                            p1[wrong_x, j] = 0.0
+                        recipe.append((True, wrong_x))
                 else:
                     if (a.var == x_ev.var and spec.antecedent_on_magnitude
                             and not spec.magnitude_plan):  # rule 3
@@ -463,6 +490,7 @@ class TransitionModel:
                         else:
                             ok &= (a.value > x_ev.value) & (now <= x_ev.value)
                     next1[:, j], p1[:, j] = moved, rel_a[j]
+                    recipe.append((False, None))
             applicable[:, j] = ok & ~excluded[:, j]
         if n_ante > 1:
             raise ValueError("a plan has one antecedent action")
@@ -471,11 +499,54 @@ class TransitionModel:
         p1[~applicable] = 0.0
         for arr in (next1, p1, next2, applicable, goal):
             arr.flags.writeable = False
-        return cls(space, actions, spec, next1, p1, next2, applicable, goal)
+        model = cls(space, actions, spec, next1, p1, next2, applicable, goal)
+        object.__setattr__(model, "_p1_recipe", tuple(recipe))
+        return model
+
+    def with_reliabilities(self, rel_action: RelAction, rel_model: RelModel) -> TransitionModel:
+        """The model :meth:`build` would give with new rel(a) and rel(r, s) and the same space,
+        actions, spec and ``regress``: only ``p1`` changes (the other arrays are shared).
+
+        The model must come from :meth:`build` (it records where each column of ``p1`` comes
+        from); ``p1`` gets the very values :meth:`build` would assign.
+        """
+        recipe = self.__dict__.get("_p1_recipe")
+        if recipe is None:
+            raise ValueError("with_reliabilities needs a model made by TransitionModel.build")
+        space = self.space
+        rel_a = _rel_actions(rel_action, self.actions)
+        rel_r = _rel_states(rel_model, space, space.all_values())
+        p1 = np.zeros((space.n_states, len(self.actions)))
+        for j, (from_model, wrong) in enumerate(recipe):
+            if from_model:
+                p1[:, j] = rel_r
+                if wrong is not None:
+                    p1[wrong, j] = 0.0
+            else:
+                p1[:, j] = rel_a[j]
+        p1[~self.applicable] = 0.0
+        p1.flags.writeable = False
+        model = TransitionModel(space, self.actions, self.spec, self.next1, p1, self.next2,
+                                self.applicable, self.goal)
+        object.__setattr__(model, "_p1_recipe", recipe)
+        rewards = self.__dict__.get("_rewards")     # R does not depend on p1
+        if rewards is not None:
+            object.__setattr__(model, "_rewards", rewards)
+        return model
 
     def rewards(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
-        """R(s, a, s') of eq. 5.5 for the two next states: (R to next1, R to next2)."""
-        return (reward(self.goal[self.next1], params), reward(self.goal[self.next2], params))
+        """R(s, a, s') of eq. 5.5 for the two next states: (R to next1, R to next2).
+
+        Cached per model and reward constants (read-only arrays)."""
+        key = (params.goal_reward, params.step_reward)
+        cached = self.__dict__.get("_rewards")
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        out = (reward(self.goal[self.next1], params), reward(self.goal[self.next2], params))
+        for arr in out:
+            arr.flags.writeable = False
+        object.__setattr__(self, "_rewards", (key, out))
+        return out
 
     def backup(self, q: np.ndarray, params: Params) -> np.ndarray:
         """Σ_s' P(s'|s,a) [R(s,a,s') + γ max_a' Q(s',a')] for all pairs (eq. 5.6, 5.10);
@@ -566,16 +637,37 @@ def value_iteration(model: TransitionModel, params: Params) -> np.ndarray:
     p2 = 1.0 - p1
     expected_r = p1 * r1 + p2 * r2
     g = params.gamma
-    appl = model.applicable
-    n1, n2 = model.next1, model.next2
+    # Only the applicable pairs are computed (the others stay NOT_APPLICABLE): the same
+    # element-wise operations on the same values as over the whole table, on fewer elements.
+    flat = np.flatnonzero(model.applicable)
+    er = expected_r.ravel()[flat]
+    a1, a2 = p1.ravel()[flat], p2.ravel()[flat]
+    n1, n2 = model.next1.ravel()[flat], model.next2.ravel()[flat]
+    q_flat = q.reshape(-1)                   # a view: q is a fresh contiguous array
+    q_app = q_flat[flat]
+    # V(s) (:func:`state_values`) from the applicable pairs alone: they come row by row, so a
+    # segmented max over each row's run gives max_a Q(s, a); rows with none keep V = 0.
+    n_a = q.shape[1]
+    rows = flat // n_a if n_a else flat
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if flat.size else flat
+    live = rows[starts]
+    v = np.zeros(q.shape[0])
+    t1, t2 = np.empty_like(er), np.empty_like(er)
     for _ in range(params.value_iteration_max_sweeps):
-        v = state_values(q)
-        new = np.where(appl, expected_r + g * (p1 * v[n1] + p2 * v[n2]), NOT_APPLICABLE)
-        with np.errstate(invalid="ignore"):
-            delta = float(np.max(np.abs(new - q), where=appl, initial=0.0))
-        q = new
+        if flat.size:
+            v[live] = np.maximum.reduceat(q_app, starts)
+        # new = er + g * (a1 * v[n1] + a2 * v[n2]), in preallocated buffers
+        np.multiply(a1, np.take(v, n1, out=t1, mode="clip"), out=t1)  # indices are valid
+        np.multiply(a2, np.take(v, n2, out=t2, mode="clip"), out=t2)
+        np.add(t1, t2, out=t1)
+        np.multiply(t1, g, out=t1)
+        new = np.add(er, t1)
+        np.subtract(new, q_app, out=t2)
+        delta = float(np.abs(t2, out=t2).max(initial=0.0))
+        q_app = new
         if delta < params.value_iteration_tol:
             break
+    q_flat[flat] = q_app
     return q
 
 

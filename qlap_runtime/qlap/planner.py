@@ -77,6 +77,9 @@ class Plan:
         self.q = np.zeros((1, 1))
         self.sarsa: SarsaLambda | None = None
         self.model: TransitionModel | None = None
+        self._model_cache: tuple[tuple, tuple, TransitionModel] | None = None
+        """(structure, reliabilities, model) of the last :meth:`_model`, reused while they
+        hold."""
         self.space: PlanStateSpace | None = None
         self.actions: list[MDPAction] = []
         self.spec: PlanSpec | None = None
@@ -136,6 +139,22 @@ class Plan:
         assert self.space is not None
         assert self.spec is not None
         space = self.space
+        usable = tuple(a.var < 0 or self.usable is None or bool(self.usable(a.var, a.value))
+                       for a in self.actions)
+        rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
+        rel_r = rel_model(space)
+        # The model is a function of these alone (the regress mask below follows from the
+        # space, actions, spec and usability): reuse it when none changed, and when only the
+        # reliabilities did (Dyna refreshes) recompute just its probabilities.
+        structure = (space, tuple(self.actions), self.spec, usable)
+        rels = (tuple(rel_a), np.asarray(rel_r, dtype=float).tobytes())
+        cached = getattr(self, "_model_cache", None)
+        if cached is not None and cached[0] == structure:
+            if cached[1] == rels:
+                return cached[2]
+            model = cached[2].with_reliabilities(rel_a, rel_r)
+            self._model_cache = (structure, rels, model)
+            return model
         vals = space.all_values()
         # §5.2.1 rule 2 as a mask: reaching a(v, q) on a magnitude would need the very change
         # this plan is for (e.g. ⟨{Y}: X→x ⇒ Ẏ→[+]⟩ with Y below q needs Ẏ = [+]).
@@ -150,11 +169,11 @@ class Plan:
                   and a.var != self.spec.antecedent.var):
                 # Appendix A item 1: actions on nominal variables already achieved in s.
                 regress[:, j] = vals[:, space.position(a.var)] == a.value
-            if a.var >= 0 and self.usable is not None and not self.usable(a.var, a.value):
+            if not usable[j]:
                 regress[:, j] = True             # e.g. a motor value out of the motor's range
-        rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
-        return TransitionModel.build(space, self.actions, self.spec, rel_a, rel_model(space),
-                                     regress)
+        model = TransitionModel.build(space, self.actions, self.spec, rel_a, rel_r, regress)
+        self._model_cache = (structure, rels, model)
+        return model
 
     def refresh(self, rel_action: RelAction, rel_model, dyna: bool) -> None:
         """New statistics: rebuild T_i and, unless ablated, one Dyna sweep (§5.2.2, eq. 5.10)."""

@@ -62,8 +62,10 @@ def binary_entropy(p: float) -> float:
 def binary_entropy_array(p: np.ndarray) -> np.ndarray:
     """Vectorised :func:`binary_entropy`."""
     p = np.asarray(p, dtype=float)
-    out = np.zeros_like(p)
     m = (p > 0) & (p < 1)
+    if p.ndim and m.all():          # the usual case (posterior probabilities): no masking
+        return -(p * np.log2(p) + (1 - p) * np.log2(1 - p))
+    out = np.zeros_like(p)
     q = p[m]
     out[m] = -(q * np.log2(q) + (1 - q) * np.log2(1 - q))
     return out
