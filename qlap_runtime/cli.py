@@ -7,31 +7,12 @@ import json
 import sys
 from pathlib import Path
 
+from .argtypes import count, positive_int
+
 DEFAULT_ACTOR_LAG = 500
 """Default batch lag L of the actor placements (docs/architecture.md §2: batches pipelined, the
 step chain never waits for them); the synchronous loop defaults to L = 0, Algorithm 2 to the
 letter."""
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}"
-                                         ) from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
-    return value
 
 
 class CliError(Exception):
@@ -87,13 +68,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--world", default="core",
                      help="registered world spec (e.g. core, core:floating, core2d, pong, "
                           "gym:Pendulum-v1) or package.module:Factory (default: core)")
-    run.add_argument("--steps", type=_positive, default=30_000,
+    run.add_argument("--steps", type=positive_int, default=30_000,
                      help="agent steps to run (default: 30000)")
     run.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     run.add_argument("--out", type=Path, default=None,
                      help="run directory for checkpoints, metrics.jsonl, knowledge.json, "
                           "summary.json (default: runs/WORLD-YYYYmmdd-HHMMSS-sSEED/)")
-    run.add_argument("--keep-checkpoints", type=_count, default=None, metavar="N",
+    run.add_argument("--keep-checkpoints", type=count, default=None, metavar="N",
                      help="keep only the newest N of the every-10,000-steps checkpoints "
                           "(0: none, only checkpoints/final; default: keep all, as the "
                           "evaluation protocol of §7.2 evaluates each)")
@@ -151,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--world", default=None,
                     help="world spec (default: the world the checkpoint records, else core)")
     ev.add_argument("--task", required=True, help="task name, e.g. move_block, hit_floor, pickup")
-    ev.add_argument("--trials", type=_positive, default=100, help="trials of the task")
+    ev.add_argument("--trials", type=positive_int, default=100, help="trials of the task")
     ev.add_argument("--seed", type=int, default=0,
                     help="seed of the trials' set-ups (the same set-ups for every checkpoint)")
     ev.add_argument("--policy", choices=("qlap", "random"), default="qlap",
@@ -174,9 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "drawn as their mean)")
     curve.add_argument("--task", required=True,
                        help="task name, e.g. move_block, hit_floor, pickup")
-    curve.add_argument("--trials", type=_positive, default=100,
+    curve.add_argument("--trials", type=positive_int, default=100,
                        help="trials per checkpoint (default: 100)")
-    curve.add_argument("--jobs", type=_positive, default=None,
+    curve.add_argument("--jobs", type=positive_int, default=None,
                        help="worker processes (default: os.cpu_count())")
     curve.add_argument("--seed", type=int, default=0,
                        help="seed of the trials, the same set-ups for every checkpoint "
@@ -187,7 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     curve.add_argument("--world", default=None,
                        help="world spec, when the checkpoints do not record theirs (default: "
                             "the world of RUN_DIR/summary.json)")
-    curve.add_argument("--every", type=_positive, default=None, metavar="N",
+    curve.add_argument("--every", type=positive_int, default=None, metavar="N",
                        help="evaluate only the checkpoints whose step is a multiple of N, "
                             "plus each run's last (default: every checkpoint)")
 
@@ -247,10 +228,10 @@ def build_parser() -> argparse.ArgumentParser:
     actor.add_argument("--run", required=True, help="run id shared by every actor of the run")
     actor.add_argument("--world", default="core",
                        help="world spec (see qlap worlds), the same for every actor")
-    actor.add_argument("--steps", type=_positive, default=30_000, help="agent steps to run")
+    actor.add_argument("--steps", type=positive_int, default=30_000, help="agent steps to run")
     actor.add_argument("--seed", type=int, default=0, help="random seed")
-    actor.add_argument("--lag", type=_count, default=500, help="batch lag L in steps")
-    actor.add_argument("--babble-steps", type=_count, default=None,
+    actor.add_argument("--lag", type=count, default=500, help="batch lag L in steps")
+    actor.add_argument("--babble-steps", type=count, default=None,
                        help="length of the initial motor-babbling period (default: 20000, "
                             "§6.1)")
     actor.add_argument("--out", type=Path, default=None,

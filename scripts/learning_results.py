@@ -18,19 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
-def _non_negative(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer ≥ 0, got {value}")
-    return value
+from qlap_runtime.argtypes import count, positive_int
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -43,19 +31,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--world", default="core", help="world spec of the runs (default: core)")
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5], metavar="S",
                    help="seeds, one run each (default: 1 2 3 4 5)")
-    p.add_argument("--steps", type=_positive, default=250_000,
+    p.add_argument("--steps", type=positive_int, default=250_000,
                    help="agent steps of each run (default: 250000)")
-    p.add_argument("--trials", type=_positive, default=100,
+    p.add_argument("--trials", type=positive_int, default=100,
                    help="evaluation trials per checkpoint and task, §7.2 (default: 100)")
     p.add_argument("--at", type=int, nargs="+", default=[], metavar="STEP",
                    help="checkpoint steps evaluated besides the multiples of --every (default: "
                         "none; e.g. 20000 230000 240000 to judge the last three checkpoints "
                         "against the end of babbling)")
-    p.add_argument("--every", type=_non_negative, default=10_000, metavar="N",
+    p.add_argument("--every", type=count, default=10_000, metavar="N",
                    help="evaluate the checkpoints whose step is a multiple of N, and each "
                         "run's last; 0: every checkpoint (default: 10000, the reference's "
                         "schedule)")
-    p.add_argument("--jobs", type=_positive, default=2,
+    p.add_argument("--jobs", type=positive_int, default=2,
                    help="runs at a time, and worker processes of each curve (default: 2)")
     p.add_argument("--runs-dir", type=Path, default=Path("runs/results"),
                    help="where the runs (W-sS/), their logs, the curves (curve-TASK/) and "

@@ -32,7 +32,14 @@ from typing import Any
 import numpy as np
 
 from ..qlap.checkpoint import atomic_write_bytes
-from .runs import AnalysisError, Checkpoint, find_checkpoints, run_labels, run_world
+from .runs import (
+    AnalysisError,
+    Checkpoint,
+    find_checkpoints,
+    run_labels,
+    run_world,
+    save_png,
+)
 
 __all__ = [
     "CSV_FIELDS",
@@ -225,9 +232,7 @@ def plot_curve(points: Sequence[CurvePoint], baseline: CurveRow | None, path: Pa
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    atomic_write_bytes(Path(path), buf.getvalue())
+    save_png(fig, path)
 
 
 def format_table(points: Sequence[CurvePoint], baseline: CurveRow | None,

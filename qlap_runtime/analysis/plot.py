@@ -10,15 +10,13 @@ with the random policy dashed.
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from ..metrics import METRICS_FILE, read_metrics
-from ..qlap.checkpoint import atomic_write_bytes
-from .runs import AnalysisError
+from .runs import AnalysisError, save_png
 
 __all__ = ["PLOT_FILE", "plot_run", "plot_run_if_possible"]
 
@@ -154,11 +152,7 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None) -> Path:
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    path = Path(out) if out is not None else run_dir / PLOT_FILE
-    atomic_write_bytes(path, buf.getvalue())
-    return path
+    return save_png(fig, Path(out) if out is not None else run_dir / PLOT_FILE, dpi=100)
 
 
 def plot_run_if_possible(run_dir: str | Path) -> Path | None:

@@ -40,7 +40,7 @@ from .curve import (
     select_every,
 )
 from .report import report_data
-from .runs import AnalysisError, find_checkpoints, run_labels, run_world
+from .runs import AnalysisError, find_checkpoints, read_summary, run_labels, run_world
 from .timeline import KnowledgePoint, describe_verdict, mean_series, plot_dbn_counts
 
 __all__ = [
@@ -110,12 +110,6 @@ def world_tasks(world: str) -> list[str]:
         w.close()
 
 
-def _summary(run_dir: Path) -> dict[str, Any] | None:
-    try:
-        data = json.loads((run_dir / "summary.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
 
 
 def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs: int,
@@ -126,7 +120,7 @@ def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs
     seeds; raises :class:`AnalysisError` when a run failed (the others are finished first)."""
     runs_dir = Path(runs_dir)
     dirs = {s: runs_dir / run_dir_name(world, s) for s in seeds}
-    todo = [s for s in seeds if _summary(dirs[s]) is None]
+    todo = [s for s in seeds if read_summary(dirs[s]) is None]
     echo(f"runs: {len(seeds) - len(todo)} of {len(seeds)} already done in {runs_dir}"
          + (f"; {len(todo)} to run, {min(jobs, len(todo))} at a time" if todo else ""))
     if not todo:
@@ -151,7 +145,7 @@ def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs
             seed = futures[fut]
             name = dirs[seed].name
             rc, seconds = fut.result()
-            summary = _summary(dirs[seed])
+            summary = read_summary(dirs[seed])
             if rc != 0 or summary is None:
                 failed.append(seed)
                 echo(f"[{i}/{len(todo)}] {name}: FAILED (exit {rc}) after {seconds:.0f} s; "

@@ -10,6 +10,7 @@ naming the last ``step-N`` when that is the final state), ``knowledge.json`` and
 
 from __future__ import annotations
 
+import io
 import json
 import re
 from dataclasses import dataclass
@@ -46,6 +47,25 @@ class Checkpoint:
     """Steps the agent had observed when it was saved (the N of ``step-N``)."""
     name: str
     """``step-NNNNNNN`` or ``final``."""
+
+
+def read_summary(run_dir: Path) -> dict[str, Any] | None:
+    """A run's ``summary.json`` (written when the run ended), or None while it has none."""
+    try:
+        data = json.loads((Path(run_dir) / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def save_png(fig: Any, path: str | Path, dpi: int = 110) -> Path:
+    """Write a matplotlib figure to ``path`` as PNG, atomically (temp file + rename)."""
+    from ..qlap.checkpoint import atomic_write_bytes
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    atomic_write_bytes(Path(path), buf.getvalue())
+    return Path(path)
 
 
 def _resolve(path: str | Path) -> Path:

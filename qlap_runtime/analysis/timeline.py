@@ -11,7 +11,6 @@ counts from 150,000 steps on are judged by :func:`growth_verdict`.
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -21,9 +20,9 @@ from typing import Any
 import numpy as np
 import orjson
 
-from ..qlap.checkpoint import AGENT_FORMAT, FORMAT, atomic_write_bytes
+from ..qlap.checkpoint import AGENT_FORMAT, FORMAT
 from . import reference_values as ref
-from .runs import AnalysisError, find_checkpoints
+from .runs import AnalysisError, find_checkpoints, save_png
 
 __all__ = [
     "KnowledgePoint",
@@ -245,6 +244,4 @@ def plot_dbn_counts(timelines: Mapping[str, Sequence[KnowledgePoint]], path: Pat
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    atomic_write_bytes(Path(path), buf.getvalue())
+    save_png(fig, path)

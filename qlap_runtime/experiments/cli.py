@@ -12,17 +12,9 @@ from .spec import ABLATIONS, ExperimentError
 
 __all__ = ["DEFAULT_OUT", "add_experiment_command", "main_experiment"]
 
+from ..argtypes import positive_int
+
 DEFAULT_OUT = Path("runs/experiments")
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
 def add_experiment_command(sub: Any) -> None:
@@ -40,15 +32,15 @@ def add_experiment_command(sub: Any) -> None:
     p.add_argument("name", nargs="?", metavar="NAME", help="the experiment (see --list)")
     p.add_argument("--list", action="store_true",
                    help="list the experiments, one line each, and exit")
-    p.add_argument("--agents", type=_positive, default=None, metavar="N",
+    p.add_argument("--agents", type=positive_int, default=None, metavar="N",
                    help="agents per condition (default: the experiment's: 20, 4 for pong; "
                         "§7.3)")
-    p.add_argument("--steps", type=_positive, default=None, metavar="N",
+    p.add_argument("--steps", type=positive_int, default=None, metavar="N",
                    help="steps of learning (default: the experiment's: 250000; transfer "
                         "300000, landmarks-vs-random 100000)")
-    p.add_argument("--trials", type=_positive, default=None, metavar="N",
+    p.add_argument("--trials", type=positive_int, default=None, metavar="N",
                    help="trials per evaluation of a checkpoint (default: 100, §7.2.1)")
-    p.add_argument("--every", type=_positive, default=None, metavar="N",
+    p.add_argument("--every", type=positive_int, default=None, metavar="N",
                    help="evaluate the checkpoints whose step is a multiple of N, and the last "
                         "(default: 10000, every checkpoint, §7.2)")
     p.add_argument("--quick", action="store_true",
@@ -61,7 +53,7 @@ def add_experiment_command(sub: Any) -> None:
                    help="with --engine ray: join the Ray cluster at this address (its nodes "
                         "need qlap-runtime installed and --out on shared storage) (default: "
                         "start a local Ray)")
-    p.add_argument("--jobs", type=_positive, default=None, metavar="N",
+    p.add_argument("--jobs", type=positive_int, default=None, metavar="N",
                    help="jobs at a time (default: every core of this machine; with --address, "
                         "every CPU of the cluster)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR",

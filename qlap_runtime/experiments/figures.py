@@ -11,13 +11,12 @@ panels (curves on top, their bars below), :func:`plot_series` a count over time 
 
 from __future__ import annotations
 
-import io
 import math
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from ..qlap.checkpoint import atomic_write_bytes
+from ..analysis.runs import save_png
 from .stats import Point
 
 __all__ = ["PanelData", "plot_series", "plot_task"]
@@ -33,9 +32,7 @@ class PanelData:
 
 
 def _save(fig: object, path: Path) -> None:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)  # type: ignore[attr-defined]
-    atomic_write_bytes(Path(path), buf.getvalue())
+    save_png(fig, path, dpi=100)
 
 
 def _colors(labels: Sequence[str]) -> dict[str, str]:

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.curve import RANDOM_RUN
+from ..analysis.runs import read_summary
 from ..qlap.checkpoint import atomic_write_bytes
 from . import stats
 from .engine import SweepResult
@@ -352,7 +353,7 @@ def _page(exp: Experiment, sweep: Sweep, res: Results, command: str, spelled: st
             for what, key in (("", run), ("landmarks from ", spec.landmark_run)):
                 if key is None:
                     continue
-                summary = _summary(sweep.run_dir(key))
+                summary = read_summary(sweep.run_dir(key))
                 rows.append([label, str(spec.seed), f"{what}`{key}`",
                              str(summary.get("steps_per_s", "—")) if summary else "not run"])
     lines += [_table(["condition", "seed", "run", "steps/s"], rows), ""]
@@ -364,9 +365,3 @@ def _page(exp: Experiment, sweep: Sweep, res: Results, command: str, spelled: st
     return "\n".join(lines)
 
 
-def _summary(run_dir: Path) -> dict[str, Any] | None:
-    try:
-        data = json.loads((run_dir / "summary.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None

@@ -1,0 +1,25 @@
+"""argparse value types shared by the command lines (``qlap``, ``qlap experiment``, scripts)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _integer_at_least(text: str, least: int, what: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if value < least:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An integer ≥ 1, with a one-line error naming the value."""
+    return _integer_at_least(text, 1, "a positive integer")
+
+
+def count(text: str) -> int:
+    """An integer ≥ 0, with a one-line error naming the value."""
+    return _integer_at_least(text, 0, "a non-negative integer")
