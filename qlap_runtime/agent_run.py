@@ -169,7 +169,9 @@ def goal_policy(agent: Agent, world: Any, task_name: str
     A trial starts (world step 0) with :meth:`Agent.new_episode` (motors at rest, histories
     broken); the world's own discontinuities (``World.discontinuity``) are passed on; the goal
     is set whenever the task's goal changes. With ``agent.learning`` False nothing the agent
-    has learned changes (tests/qlap/test_agent.py).
+    has learned changes, except that plans' Sarsa(λ) adapts within a trial (§5.2.2) and the
+    next trial undoes it (``Params.sarsa_in_trials``; call :meth:`Agent.end_trial` after the
+    last trial; tests/qlap/test_agent.py).
     """
     if task_name not in world.tasks:
         raise ValueError(f"{world.name} has no task {task_name!r}; "
@@ -209,6 +211,7 @@ def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, se
     elif policy == "qlap":
         agent = load_agent(checkpoint)
         res = run_trials(world, task_name, trials, seed, goal_policy(agent, world, task_name))
+        agent.end_trial()                               # the last trial's Sarsa, undone
     else:
         raise ValueError(f"policy must be 'qlap' or 'random', got {policy!r}")
     rewards = np.asarray(res["rewards"], dtype=float)

@@ -149,7 +149,9 @@ class Agent:
         self.goal_idle = "babble"      # what goal mode does with no plan: babble | zero
         self.learning = True
         """False: evaluation (§7.2). Nothing learned changes: no statistics of actions and
-        plans, no Sarsa, no Dyna, no model learning (the learner only perceives)."""
+        plans, no Dyna, no model learning (the learner only perceives); Sarsa only within a
+        trial, undone by :meth:`end_trial` (``Params.sarsa_in_trials``)."""
+        self._trial_saved: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.iac_log: deque[IACChoice] = deque(maxlen=200)
         self.counters = AgentCounters()
         self.self_vars: set[int] = set()
@@ -542,6 +544,7 @@ class Agent:
         self.call_list.clear()
         self.mode = "idle"
         self.hold_until = -1
+        self.end_trial()
         self.learner.break_history()
         self.motor = dict(self.rest)
         self.babbler.restart()
@@ -755,6 +758,7 @@ class Agent:
         depth = len(self.call_list) - 1
         assert plan.sarsa is not None
         if self._sarsa_on():
+            self._keep_for_trial(plan)
             plan.sarsa.reset()
         status = self._next_sub(depth, p, first=True)
         if status == FAIL:
@@ -783,6 +787,7 @@ class Agent:
             return FAIL                                          # §5.5.2 plan rule 2
         f.sub, f.sub_state, f.sub_started = a2, s2, p.step
         if first and plan.sarsa is not None and self._sarsa_on():
+            self._keep_for_trial(plan)
             plan.sarsa.start(s2, a2)
         act = plan.actions[a2]
         if act.role is Role.WAIT:
@@ -795,8 +800,28 @@ class Agent:
         return status                                            # FAIL: rule 4
 
     def _sarsa_on(self) -> bool:
-        """Sarsa learns while the agent learns, unless ablated (§5.2.2, §7.11)."""
-        return self.learning and not self.params.ablations.no_sarsa
+        """Sarsa learns while the agent learns, unless ablated (§5.2.2, §7.11); with learning
+        off it still learns within a trial when ``Params.sarsa_in_trials`` (undone by
+        :meth:`end_trial`)."""
+        return (self.learning or self.params.sarsa_in_trials) \
+            and not self.params.ablations.no_sarsa
+
+    def _keep_for_trial(self, plan: Plan) -> None:
+        """With learning off, keep the plan's Q-table and traces as they were before this
+        trial's first Sarsa step on it, for :meth:`end_trial`."""
+        if not self.learning and plan.id not in self._trial_saved:
+            assert plan.sarsa is not None
+            self._trial_saved[plan.id] = (plan.q.copy(), plan.sarsa.e.copy())
+
+    def end_trial(self) -> None:
+        """Undo what Sarsa learned during a trial with learning off (``sarsa_in_trials``):
+        every Q-table and trace is back to its value before the trial, bit for bit."""
+        for pid, (q, e) in self._trial_saved.items():
+            plan = self.plans[pid]
+            assert plan.sarsa is not None
+            plan.q[...] = q                          # in place: Sarsa shares the array
+            plan.sarsa.e[...] = e
+        self._trial_saved = {}
 
     def _sarsa(self, plan: Plan, f: Frame, p: Percept, s2: int, goal: bool,
                a2: int | None) -> None:
@@ -808,6 +833,7 @@ class Agent:
         r = sarsa_reward(goal, p.step - f.sub_started, self.params)
         if a2 is not None and not plan.model.applicable[s2, a2]:  # type: ignore[union-attr]
             a2 = None
+        self._keep_for_trial(plan)
         plan.sarsa.update(f.sub_state, f.sub, r, s2, a2)
 
     def _process(self, i: int, p: Percept) -> str:

@@ -154,6 +154,10 @@ class Params:
     """ε of the ε-greedy plan choice (§6.1.2)."""
     policy_epsilon: float = 0.05
     """ε of the ε-greedy action choice inside a plan (§6.1.3)."""
+    sarsa_in_trials: bool = True
+    """With learning off (evaluation, §7.2), a plan's Sarsa(λ) still updates its Q-table as
+    the option executes (§5.2.2), and each new trial undoes it: the agent adapts within a
+    trial, every trial starts from the checkpoint (docs/decisions.md)."""
 
     # --- developmental restrictions (§6.2) ---------------------------------------------------
     max_plans_per_action: int = 3

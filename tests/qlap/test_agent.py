@@ -207,6 +207,7 @@ def test_evaluation_changes_nothing_the_agent_learned(trained, tmp_path):
     res = run_trials(world, "x_up", 10, 3, goal_policy(ev, world, "x_up"))
     assert res["successes"] >= 8                         # the plans were used
     assert ev.counters.successes + ev.counters.failures >= 10
+    ev.end_trial()                                       # the last trial's Sarsa, undone
     after = knowledge_snapshot(ev)
     assert [k for k in before if before[k] != after[k]] == []
     # the command-line path loads the checkpoint itself; same result for the same seed
@@ -226,7 +227,37 @@ def test_evaluation_leaves_the_perception_history_alone(trained, tmp_path):
     before = knowledge_snapshot(ev)
     world = ToyTaskWorld()
     run_trials(world, "x_up", 10, 3, goal_policy(ev, world, "x_up"))
+    ev.end_trial()
     assert knowledge_snapshot(ev) == before
+
+
+def test_sarsa_adapts_within_a_trial_and_the_next_trial_starts_from_the_checkpoint(
+        trained, tmp_path):
+    """§5.2.2 with learning off (``Params.sarsa_in_trials``): Q moves during a trial; a new
+    episode (or :meth:`Agent.end_trial`) puts every Q-table and trace back, bit for bit."""
+    import dataclasses
+
+    from qlap_runtime.agent_run import goal_policy
+    from tests.qlap.toyworld import ToyTaskWorld
+    from worlds.evaluate import run_trials
+
+    agent, _ = trained
+    agent.learning = True
+    save_agent(agent, tmp_path / "ck")
+    ev = load_agent(tmp_path / "ck")
+    before = knowledge_snapshot(ev)
+    world = ToyTaskWorld()
+    run_trials(world, "x_up", 3, 3, goal_policy(ev, world, "x_up"))
+    during = knowledge_snapshot(ev)                      # the last trial not yet undone
+    changed = sorted(k for k in before if before[k] != during[k])
+    assert changed and all(k.startswith("plan") and k.endswith((".q", ".e")) for k in changed)
+    ev.new_episode()
+    assert knowledge_snapshot(ev) == before
+    # switched off: not even within a trial
+    ev2 = load_agent(tmp_path / "ck")
+    ev2.params = dataclasses.replace(ev2.params, sarsa_in_trials=False)
+    run_trials(world, "x_up", 3, 3, goal_policy(ev2, world, "x_up"))
+    assert knowledge_snapshot(ev2) == before
 
 
 def test_the_same_trials_with_learning_on_would_change_the_knowledge(trained, tmp_path):
