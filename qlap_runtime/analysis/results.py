@@ -451,7 +451,8 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
         f"each, `--jobs {cfg.jobs}` runs and evaluations at a time; checkpoints evaluated "
         + ("all" if not cfg.every else f"every {cfg.every:,} steps and the last")
         + f", {cfg.trials} trials each (trial seed {cfg.eval_seed}, the same set-ups for every "
-        "checkpoint), learning off, as `qlap eval`.",
+        "checkpoint), learning off (plans' Sarsa adapts within a trial and is undone before "
+        "the next, docs/decisions.md 37), as `qlap eval`.",
         "",
         "The command (as typed, then with every option spelled out):",
         "",
