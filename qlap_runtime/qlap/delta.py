@@ -22,9 +22,30 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .params import Params
 
 Op = tuple[Any, ...]
+
+KINDS = ("dbn", "landmarks")
+"""The parts of a batch of Algorithm 2, in apply order: lines 6–9, then lines 10–13."""
+
+
+def delta_version(computed_at: int, kind: str) -> int:
+    """The global, deterministic version of a batch's delta (apply order)."""
+    return 2 * computed_at + KINDS.index(kind)
+
+
+def batch_kinds(params: Params, step: int) -> tuple[str, ...]:
+    """The deltas a batch at ``step`` produces (none if ``step`` is not a batch step)."""
+    if step <= 0 or step % params.dbn_period:
+        return ()
+    if step % params.landmark_period == 0:
+        return KINDS
+    return ("dbn",)
+
 
 OP_NAMES = ("refresh", "set_k", "add_dbn", "set_context", "delete_dbn", "add_landmark")
 

@@ -19,7 +19,7 @@ import numpy as np
 from .context import is_model_improvement, update_context
 from .contingency import PairStatistics, WindowLearner
 from .dbn import CHANGE, DBN, MAGNITUDE, ModelStats, context_cells, counts_by_cell, model_stats
-from .delta import Delta, Op
+from .delta import Delta, Op, delta_version
 from .landmarks import EventBinner, best_cut, candidate_range, cut_gain_bounds, is_candidate
 from .params import Params
 from .perception import EventIndex, Percept, Perception
@@ -372,8 +372,6 @@ class ModelLearner:
         return self._compute_parts(step, kinds)
 
     def _compute_parts(self, step: int, kinds: tuple[str, ...]) -> dict[str, Delta]:
-        from ..runtime.lockstep import delta_version
-
         out: dict[str, Delta] = {}
         lag = self.params.batch_lag
         ops: list[Op] = []

@@ -14,24 +14,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..qlap.delta import Delta
+from ..qlap.delta import KINDS, Delta, batch_kinds, delta_version
 from ..qlap.params import Params
 
-KINDS = ("dbn", "landmarks")
+__all__ = ["KINDS", "DeltaBook", "batch_kinds", "delta_version"]
 
-
-def delta_version(computed_at: int, kind: str) -> int:
-    """The global, deterministic version of a batch's delta (apply order)."""
-    return 2 * computed_at + KINDS.index(kind)
-
-
-def batch_kinds(params: Params, step: int) -> tuple[str, ...]:
-    """The deltas a batch at ``step`` produces (none if ``step`` is not a batch step)."""
-    if step <= 0 or step % params.dbn_period:
-        return ()
-    if step % params.landmark_period == 0:
-        return KINDS
-    return ("dbn",)
 
 
 @dataclass
