@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from qlap_runtime.qlap import mdp
 from qlap_runtime.qlap.mdp import (
     NOT_APPLICABLE,
     MDPAction,
@@ -504,3 +505,48 @@ def test_state_round_trips_through_strict_json() -> None:
     # npz-friendly: the same dict as arrays
     as_arrays = {k: np.asarray(v) for k, v in q_to_state(q).items()}
     np.testing.assert_array_equal(q_from_state(as_arrays), q)
+
+
+# --- value iteration on the bisimulation quotient ---------------------------------------------
+
+
+def _unreduced_value_iteration(model: TransitionModel, params: Params) -> np.ndarray:
+    """The sweeps of value_iteration over every state (no quotient)."""
+    r1, r2 = model.rewards(params)
+    p1 = model.p1
+    p2 = 1.0 - p1
+    return mdp._sweeps(model.initial_q(), p1 * r1 + p2 * r2, p1, p2, model.next1, model.next2,
+                       model.applicable, params)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_value_iteration_on_the_quotient_is_bit_identical(seed: int) -> None:
+    # W (var 3, 3 values) and C: rel(r, s) depends on C only, so states differing in W alone
+    # are bisimilar (W's own context moves aside, which every W value has the same of).
+    rng = np.random.default_rng(seed)
+    w_var = 3
+    space = PlanStateSpace.from_groups([[w_var], [C], [X], [Y]], {w_var: 3, C: 3, X: 2, Y: 2})
+    actions = build_actions(space, TOY_SPEC)
+    rel_a = rng.uniform(0.05, 1.0, len(actions)).round(int(rng.integers(1, 4)))
+    rel_c = rng.uniform(0.0, 1.0, 3)
+    model = TransitionModel.build(space, actions, TOY_SPEC, rel_a,
+                                  lambda st: float(rel_c[st[C]]))
+    r1, r2 = model.rewards(P)
+    er = model.p1 * r1 + (1.0 - model.p1) * r2
+    cls, reps = mdp._bisimilar(model.applicable, er, model.p1, model.next1, model.next2)
+    assert reps.size < space.n_states                       # something was merged
+    np.testing.assert_array_equal(cls[reps], np.arange(reps.size))
+    for params in (P, P.replace(value_iteration_max_sweeps=3)):
+        q = value_iteration(model, params)
+        assert q.tobytes() == _unreduced_value_iteration(model, params).tobytes()
+
+
+def test_row_classes_survive_hash_collisions(monkeypatch: pytest.MonkeyPatch) -> None:
+    rows = np.array([[1, 2], [3, 4], [1, 2], [5, 6], [3, 4]], dtype=np.int64)
+    cls, first = mdp._row_classes(rows)
+    np.testing.assert_array_equal(cls, [0, 1, 0, 2, 1])
+    np.testing.assert_array_equal(first, [0, 1, 3])
+    monkeypatch.setitem(mdp._ROW_HASH, 2, np.zeros(2, dtype=np.uint64))   # every hash equal
+    cls2, first2 = mdp._row_classes(rows)
+    np.testing.assert_array_equal(cls2, cls)
+    np.testing.assert_array_equal(first2, first)
