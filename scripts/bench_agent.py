@@ -152,7 +152,8 @@ def resume(args: argparse.Namespace) -> None:
     t0 = int(m.group(1)) if m else int(getattr(agent, "step_count", -1)) + 1
     world = worlds.make(args.world)
     obs = world.reset(seed=args.seed)
-    prof = cProfile.Profile() if args.profile else None
+    # CPU time: on a busy machine wall-clock profiles charge functions for time not running.
+    prof = cProfile.Profile(time.process_time) if args.profile else None
     start, cpu0 = time.perf_counter(), time.process_time()
     if prof:
         prof.enable()

@@ -58,6 +58,9 @@ class PlanStateSpace:
             raise ValueError(f"a variable appears twice in the state space: {self.vars}")
         if any(n < 1 for n in self.sizes):
             raise ValueError(f"every variable needs at least one value, got sizes {self.sizes}")
+        # (variable, size) pairs for :meth:`index_from_full`, called for every plan at every
+        # IAC choice (not a field: equality and hashing stay those of vars and sizes).
+        object.__setattr__(self, "_var_sizes", tuple(zip(self.vars, self.sizes, strict=True)))
 
     @classmethod
     def from_groups(cls, groups: Iterable[Iterable[int]],
@@ -150,7 +153,7 @@ class PlanStateSpace:
             full = full.tolist()
         n_full = len(full)
         idx = 0
-        for v, n in zip(self.vars, self.sizes, strict=True):
+        for v, n in self.__dict__["_var_sizes"]:
             if v >= n_full:
                 return None
             q = full[v]
@@ -731,9 +734,9 @@ def _row_classes(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     w = rows.shape[1]
     mult = _ROW_HASH.get(w)
-    if mult is None:
-        mult = np.random.default_rng(w).integers(1, 2**63, size=w, dtype=np.uint64)
-        mult = _ROW_HASH[w] = mult | np.uint64(1)
+    if mult is None:       # odd 64-bit multipliers, fixed per width
+        drawn = np.random.default_rng(w).integers(1, 2**63, size=w, dtype=np.uint64)
+        mult = _ROW_HASH[w] = np.bitwise_or(drawn, np.uint64(1))
     _, first, inv = np.unique(rows.view(np.uint64) @ mult, return_index=True,
                               return_inverse=True)
     inv = inv.reshape(-1)
