@@ -756,11 +756,36 @@ def dyna_sweep(q: np.ndarray, model: TransitionModel, params: Params) -> np.ndar
     Synchronous: every backup uses the Q-table from before the sweep. Returns ``q``.
     """
     _check_shape(q, model)
-    target = model.backup(q, params)
     a = params.dyna_alpha
-    m = model.applicable
-    q[m] = (1.0 - a) * q[m] + a * target[m]
+    if not q.flags.c_contiguous:
+        target = model.backup(q, params)
+        m = model.applicable
+        q[m] = (1.0 - a) * q[m] + a * target[m]
+        return q
+    # :meth:`TransitionModel.backup` on the applicable pairs only (the others are not used):
+    # the same element-wise operations on the same values, about half the elements.
+    flat, p1, p2, r1, r2, n1, n2 = _applicable_pairs(model, params)
+    v = state_values(q)
+    g = params.gamma
+    target = p1 * (r1 + g * v[n1]) + p2 * (r2 + g * v[n2])
+    q_flat = q.reshape(-1)                                  # a view (contiguous)
+    q_flat[flat] = (1.0 - a) * q_flat[flat] + a * target
     return q
+
+
+def _applicable_pairs(model: TransitionModel, params: Params) -> tuple[np.ndarray, ...]:
+    """The applicable pairs' flat indices, p1, 1 − p1, rewards and next states (in
+    :meth:`TransitionModel.backup`'s terms), cached on the model per reward constants."""
+    key = (params.goal_reward, params.step_reward)
+    cached = model.__dict__.get("_applicable_pairs")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    r1, r2 = model.rewards(params)
+    flat = np.flatnonzero(model.applicable)
+    out = (flat, model.p1.ravel()[flat], (1.0 - model.p1).ravel()[flat], r1.ravel()[flat],
+           r2.ravel()[flat], model.next1.ravel()[flat], model.next2.ravel()[flat])
+    object.__setattr__(model, "_applicable_pairs", (key, out))
+    return out
 
 
 def greedy_policy(q: np.ndarray) -> np.ndarray:
@@ -973,29 +998,35 @@ def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPActi
             dropped.append(i)
     cols = action_map(old_actions, new_actions, maps)
     known = np.flatnonzero(cols >= 0)
-    acc = np.zeros((new.n_states, known.size))
-    cnt = np.zeros((new.n_states, known.size))
-    combos = np.ndindex(*(old.sizes[i] for i in dropped)) if dropped else iter([()])
-    for combo in combos:
-        for i, q in zip(dropped, combo, strict=True):
-            old_vals[:, i] = q
+    if dropped:
+        acc = np.zeros((new.n_states, known.size))
+        cnt = np.zeros((new.n_states, known.size))
+        for combo in np.ndindex(*(old.sizes[i] for i in dropped)):
+            for i, q in zip(dropped, combo, strict=True):
+                old_vals[:, i] = q
+            block = q_old[np.ix_(_ravel(old_vals, old.sizes), cols[known])]
+            finite = np.isfinite(block)
+            acc += np.where(finite, block, 0.0)
+            cnt += finite
+        has = cnt > 0
+    else:
+        # One ancestor per state (the usual growth): its values, as the mean of one value
+        # would give them (0.0 + x / 1.0, i.e. x with −0.0 made +0.0).
         block = q_old[np.ix_(_ravel(old_vals, old.sizes), cols[known])]
-        finite = np.isfinite(block)
-        acc += np.where(finite, block, 0.0)
-        cnt += finite
+        has = np.isfinite(block)
     if callable(base):
         if applicable is None:
             raise ValueError("grow_q: a callable base needs the applicable mask")
         inherited = np.zeros(applicable.shape, dtype=bool)
-        inherited[:, known] = cnt > 0
+        inherited[:, known] = has
         if (applicable & ~inherited).any():
             base = base()
         else:
             base = np.where(applicable, 0.0, NOT_APPLICABLE)
     out = np.array(base, dtype=float, copy=True)
     sub = out[:, known]
-    ok = (cnt > 0) & np.isfinite(sub)
-    sub[ok] = acc[ok] / cnt[ok]
+    ok = has & np.isfinite(sub)
+    sub[ok] = acc[ok] / cnt[ok] if dropped else block[ok] + 0.0
     out[:, known] = sub
     return out
 

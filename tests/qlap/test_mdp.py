@@ -550,3 +550,52 @@ def test_row_classes_survive_hash_collisions(monkeypatch: pytest.MonkeyPatch) ->
     cls2, first2 = mdp._row_classes(rows)
     np.testing.assert_array_equal(cls2, cls)
     np.testing.assert_array_equal(first2, first)
+
+
+def test_dyna_sweep_on_applicable_pairs_is_bit_identical() -> None:
+    rng = np.random.default_rng(3)
+    w_var = 3
+    space = PlanStateSpace.from_groups([[w_var], [C], [X], [Y]], {w_var: 3, C: 3, X: 2, Y: 2})
+    actions = build_actions(space, TOY_SPEC)
+    model = TransitionModel.build(space, actions, TOY_SPEC, rng.uniform(0.1, 1.0, len(actions)),
+                                  rng.uniform(0.0, 1.0, space.n_states))
+    q = np.where(model.applicable, rng.normal(0.0, 3.0, model.applicable.shape), NOT_APPLICABLE)
+    a = P.dyna_alpha
+    expected = q.copy()
+    m = model.applicable
+    expected[m] = (1.0 - a) * q[m] + a * model.backup(q, P)[m]
+    for _ in range(2):                                      # the second sweep: cached pairs
+        expected2 = expected.copy()
+        expected2[m] = (1.0 - a) * expected[m] + a * model.backup(expected, P)[m]
+        got = dyna_sweep(q, model, P)
+        assert got is q and q.tobytes() == expected.tobytes()
+        expected = expected2
+    wide = np.zeros((q.shape[0], 2 * q.shape[1]))           # a non-contiguous table
+    wide[:, ::2] = q
+    dyna_sweep(wide[:, ::2], model, P)
+    assert np.ascontiguousarray(wide[:, ::2]).tobytes() == expected.tobytes()
+
+
+def test_grow_q_single_ancestor_matches_the_mean_bit_for_bit() -> None:
+    # A split of C's value 0 (one ancestor per new state): each inherited value is the mean of
+    # one value, 0.0 + x / 1.0, so −0.0 becomes +0.0 and every other value is kept exactly.
+    actions = build_actions(TOY_SPACE, TOY_SPEC)
+    model = TransitionModel.build(TOY_SPACE, actions, TOY_SPEC, [0.9, 0.9, 0.5], np.full(8, 0.5))
+    q_old = np.where(model.applicable, np.random.default_rng(0).normal(0, 3, (8, 3)),
+                     NOT_APPLICABLE)
+    q_old[0, 0] = -0.0
+    new_space, _ = TOY_SPACE.resized(C, 4, split_value_map(2, 0))
+    new_actions = build_actions(new_space, TOY_SPEC)
+    maps = compose_split_maps([(C, 0)], {C: 4, X: 2, Y: 2})
+    out = grow_q(q_old, TOY_SPACE, actions, new_space, new_actions, maps,
+                 np.zeros((new_space.n_states, len(new_actions))))
+    assert out is not None
+    state_map = new_space.all_values()[:, 0]
+    rows = maps[C][state_map] * 4 + new_space.all_values()[:, 1] * 2 + new_space.all_values()[:, 2]
+    cols = action_map(actions, new_actions, maps)
+    for s_new in range(new_space.n_states):
+        for j, j_old in enumerate(cols):
+            x = q_old[rows[s_new], j_old] if j_old >= 0 else np.nan
+            want = (0.0 + x) / 1.0 if np.isfinite(x) else 0.0
+            assert np.array([out[s_new, j]]).tobytes() == np.array([want]).tobytes()
+    assert np.signbit(q_old[0, 0]) and not np.signbit(out[0, 0])
