@@ -12,15 +12,30 @@ Usage: scripts/bench_agent.py [--world core] [--steps 30000] [--babble-steps 200
 ``--resume`` steps a grown agent loaded from a checkpoint (its world is reset with ``--seed``)
 and prints its steps/s; ``--profile N`` prints the N functions with the most own time
 (cProfile).
+
+``--against TREE`` (with ``--resume``) measures side by side: ``--rounds`` alternating runs of
+this code and of the source tree TREE (e.g. a ``git worktree`` of main), each in a fresh process
+on the same checkpoint and world seed, then prints the speed ratio (this / TREE, from the
+median CPU times of the step loop: process CPU time is far less disturbed than wall time by
+other work on the machine) and whether both ended with byte-identical knowledge and Q-tables:
+
+    scripts/bench_agent.py --resume CKPT --steps 8000 --against ../wt-main --rounds 3
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import hashlib
+import json
+import os
 import pstats
 import re
+import statistics
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import worlds
 from qlap_runtime.agent_run import params_for_world
@@ -37,7 +52,14 @@ def main() -> None:
     ap.add_argument("--resume", metavar="CHECKPOINT", help="step a grown agent from here")
     ap.add_argument("--profile", type=int, default=0, metavar="N",
                     help="with --resume: print the top N functions by own time")
+    ap.add_argument("--against", metavar="TREE",
+                    help="with --resume: compare with the code of source tree TREE, side by side")
+    ap.add_argument("--rounds", type=int, default=3, help="with --against: runs of each")
+    ap.add_argument("--json", action="store_true", help=argparse.SUPPRESS)  # child of --against
     args = ap.parse_args()
+    if args.resume and args.against:
+        compare(args)
+        return
     if args.resume:
         resume(args)
         return
@@ -79,6 +101,48 @@ def main() -> None:
           f"{c.practice_calls} practice calls ({c.successes} succeeded)")
 
 
+def digest(agent: Agent) -> str:
+    """SHA-256 of what the agent knows: knowledge.json's content and every plan's Q-table and
+    Sarsa traces (the bytes an optimisation must leave unchanged)."""
+    h = hashlib.sha256(json.dumps(agent.knowledge(), sort_keys=True).encode())
+    for pid in sorted(agent.plans):
+        plan = agent.plans[pid]
+        h.update(f"plan {pid}".encode())
+        for arr in (plan.q, getattr(plan.sarsa, "e", None)):
+            if arr is not None:
+                h.update(repr(arr.shape).encode() + arr.tobytes())
+    return h.hexdigest()
+
+
+def compare(args: argparse.Namespace) -> None:
+    """Alternate runs of this code and of ``args.against``; print the ratio and the digests."""
+    here = Path(__file__).resolve().parents[1]
+    trees = {"this": here, "ref": Path(args.against).resolve()}
+    times: dict[str, list[float]] = {k: [] for k in trees}
+    digests: dict[str, set[str]] = {k: set() for k in trees}
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--resume", str(args.resume),
+           "--steps", str(args.steps), "--seed", str(args.seed), "--world", args.world, "--json"]
+    for r in range(args.rounds):
+        for name, tree in trees.items():
+            env = {**os.environ, "PYTHONPATH": str(tree)}
+            out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
+            res = json.loads(out.stdout.strip().splitlines()[-1])
+            if Path(res["module"]).resolve().parents[1] != tree:
+                raise SystemExit(f"{name}: imported qlap_runtime from {res['module']}, not {tree}")
+            times[name].append(res["cpu"])
+            digests[name].add(res["digest"])
+            print(f"  round {r + 1} {name:4s} ({tree}): {args.steps / res['cpu']:,.0f} steps "
+                  f"per CPU second ({args.steps / res['wall']:,.0f} per wall second)")
+    t_this, t_ref = statistics.median(times["this"]), statistics.median(times["ref"])
+    same = len(digests["this"] | digests["ref"]) == 1
+    print(f"{args.world} resumed from {args.resume}, {args.steps} steps, median of {args.rounds}: "
+          f"this {args.steps / t_this:,.0f}, ref {args.steps / t_ref:,.0f} steps per CPU second, "
+          f"ratio {t_ref / t_this:.3f}; knowledge and Q-tables "
+          f"{'byte-identical' if same else 'DIFFER'} ({', '.join(sorted(digests['this']))[:16]})")
+    if not same:
+        raise SystemExit(1)
+
+
 def resume(args: argparse.Namespace) -> None:
     """Steps/s of an agent resumed from a checkpoint (a grown agent: many plans and DBNs)."""
     from qlap_runtime.qlap.checkpoint import load_agent
@@ -88,8 +152,9 @@ def resume(args: argparse.Namespace) -> None:
     t0 = int(m.group(1)) if m else int(getattr(agent, "step_count", -1)) + 1
     world = worlds.make(args.world)
     obs = world.reset(seed=args.seed)
-    prof = cProfile.Profile() if args.profile else None
-    start = time.perf_counter()
+    # CPU time: on a busy machine wall-clock profiles charge functions for time not running.
+    prof = cProfile.Profile(time.process_time) if args.profile else None
+    start, cpu0 = time.perf_counter(), time.process_time()
     if prof:
         prof.enable()
     for t in range(t0, t0 + args.steps):
@@ -97,8 +162,13 @@ def resume(args: argparse.Namespace) -> None:
         obs = world.step(motor)
     if prof:
         prof.disable()
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu0
     world.close()
+    if args.json:
+        import qlap_runtime
+        print(json.dumps({"wall": wall, "cpu": cpu, "digest": digest(agent),
+                          "module": qlap_runtime.__file__}))
+        return
     print(f"{args.world} resumed at step {t0}: {args.steps} steps in {wall:.1f} s = "
           f"{args.steps / wall:,.0f} steps/s (world included{', profiled' if prof else ''}); "
           f"{len(agent.learner.dbns)} DBNs, {len(agent.plans)} plans")

@@ -59,8 +59,18 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
     default would pick for one round (the lowest entropy if ``by_entropy``, else the highest
     brel, ties to the lower index) — a faster way to score all options at once.
     """
+    # evaluate is pure: each context is scored once (the final comparison with ``current``
+    # often meets a context the climb already scored).
+    scores: dict[tuple[int, ...], ModelStats] = {}
+
+    def score(c: tuple[int, ...]) -> ModelStats:
+        r = scores.get(c)
+        if r is None:
+            r = scores[c] = evaluate(c)
+        return r
+
     ctx: tuple[int, ...] = ()
-    r1 = evaluate(ctx)
+    r1 = score(ctx)
     while len(ctx) < params.max_context_vars:
         options = [v for v in candidates if v not in ctx]
         if not options:
@@ -68,8 +78,9 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
         by_entropy = r1.reliable or params.ablations.entropy_only
         if choose is not None:
             v, r2 = choose(ctx, options, by_entropy)
+            scores.setdefault(tuple(sorted((*ctx, v))), r2)
         else:
-            scored = [(v, evaluate(tuple(sorted((*ctx, v))))) for v in options]
+            scored = [(v, score(tuple(sorted((*ctx, v))))) for v in options]
             if by_entropy:
                 v, r2 = min(scored, key=lambda p: (p[1].entropy, p[0]))
             else:
@@ -80,8 +91,8 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
         ctx = tuple(sorted((*ctx, v)))
         r1 = r2
     if tuple(sorted(current)) != ctx:
-        # r: the DBN under its current context (evaluated only when needed; evaluate is pure).
-        r = evaluate(tuple(current))
+        # r: the DBN under its current context (evaluated only when needed).
+        r = score(tuple(current))
         if is_model_improvement(r, r1, params):
             return ctx
     return None

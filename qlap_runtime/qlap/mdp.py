@@ -58,6 +58,9 @@ class PlanStateSpace:
             raise ValueError(f"a variable appears twice in the state space: {self.vars}")
         if any(n < 1 for n in self.sizes):
             raise ValueError(f"every variable needs at least one value, got sizes {self.sizes}")
+        # (variable, size) pairs for :meth:`index_from_full`, called for every plan at every
+        # IAC choice (not a field: equality and hashing stay those of vars and sizes).
+        object.__setattr__(self, "_var_sizes", tuple(zip(self.vars, self.sizes, strict=True)))
 
     @classmethod
     def from_groups(cls, groups: Iterable[Iterable[int]],
@@ -150,7 +153,7 @@ class PlanStateSpace:
             full = full.tolist()
         n_full = len(full)
         idx = 0
-        for v, n in zip(self.vars, self.sizes, strict=True):
+        for v, n in self.__dict__["_var_sizes"]:
             if v >= n_full:
                 return None
             q = full[v]
@@ -629,20 +632,40 @@ def value_iteration(model: TransitionModel, params: Params) -> np.ndarray:
 
     Stops when no Q-value moves more than ``value_iteration_tol`` or after
     ``value_iteration_max_sweeps`` sweeps. Inapplicable pairs hold :data:`NOT_APPLICABLE`.
+
+    The sweeps run on the quotient of the model by exact bisimilarity (:func:`_bisimilar`):
+    states of one class get bit for bit the same Q-values at every sweep, so each class is
+    computed once and copied back — the same result as sweeping every state, ~15× fewer states
+    in grown plans (variables of C and C_o that the transitions do not distinguish).
     """
-    q = model.initial_q()
     # eq. 5.6 with the constant parts of :meth:`TransitionModel.backup` taken out of the loop.
     r1, r2 = model.rewards(params)
     p1 = model.p1
     p2 = 1.0 - p1
     expected_r = p1 * r1 + p2 * r2
+    app = model.applicable
+    cls, reps = _bisimilar(app, expected_r, p1, model.next1, model.next2)
+    if reps.size == cls.size:                       # nothing to merge
+        return _sweeps(model.initial_q(), expected_r, p1, p2, model.next1, model.next2, app,
+                       params)
+    q = np.where(app[reps], 0.0, NOT_APPLICABLE)
+    q = _sweeps(q, expected_r[reps], p1[reps], p2[reps], cls[model.next1[reps]],
+                cls[model.next2[reps]], app[reps], params)
+    return q[cls]
+
+
+def _sweeps(q: np.ndarray, expected_r: np.ndarray, p1: np.ndarray, p2: np.ndarray,
+            next1: np.ndarray, next2: np.ndarray, applicable: np.ndarray,
+            params: Params) -> np.ndarray:
+    """The sweeps of :func:`value_iteration` on a Q-table ``q`` (fresh, contiguous; 0 on the
+    applicable pairs), in place; ``next1``/``next2`` index rows of ``q``."""
     g = params.gamma
     # Only the applicable pairs are computed (the others stay NOT_APPLICABLE): the same
     # element-wise operations on the same values as over the whole table, on fewer elements.
-    flat = np.flatnonzero(model.applicable)
+    flat = np.flatnonzero(applicable)
     er = expected_r.ravel()[flat]
     a1, a2 = p1.ravel()[flat], p2.ravel()[flat]
-    n1, n2 = model.next1.ravel()[flat], model.next2.ravel()[flat]
+    n1, n2 = next1.ravel()[flat], next2.ravel()[flat]
     q_flat = q.reshape(-1)                   # a view: q is a fresh contiguous array
     q_app = q_flat[flat]
     # V(s) (:func:`state_values`) from the applicable pairs alone: they come row by row, so a
@@ -671,17 +694,98 @@ def value_iteration(model: TransitionModel, params: Params) -> np.ndarray:
     return q
 
 
+def _bisimilar(applicable: np.ndarray, expected_r: np.ndarray, p1: np.ndarray,
+               next1: np.ndarray, next2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The coarsest partition of the states in which two states of a class have, for every
+    action, the same applicability, the same bits of E[R] and of p1, and next states in the
+    same class; returns (class of each state, the first state of each class, in state order).
+
+    By induction over the sweeps of :func:`value_iteration` (Q = 0 at the start, each backup a
+    function of exactly these), states of one class have bit-identical Q rows at every sweep.
+    Found by partition refinement: classes are split by their next states' classes until every
+    state agrees with its class's first state (grown plans: usually at once).
+    """
+    n_s, n_a = applicable.shape
+    sig = np.empty((n_s, 2 * n_a + 1), dtype=np.int64)
+    # NaN marks an inapplicable pair (E[R] of an applicable one is finite).
+    sig[:, 1:n_a + 1] = np.where(applicable, expected_r, np.nan).view(np.int64)
+    sig[:, n_a + 1:] = np.where(applicable, p1, 0.0).view(np.int64)
+    cls, reps = _row_classes(sig[:, 1:])
+    while True:
+        # An inapplicable pair leads to its own state (TransitionModel.build), whose class all
+        # states of the class share: no mask is needed.
+        sig[:, 0] = cls
+        np.take(cls, next1, out=sig[:, 1:n_a + 1])
+        np.take(cls, next2, out=sig[:, n_a + 1:])
+        if np.array_equal(sig, sig[reps[cls]]):     # stable: no class splits
+            return cls, reps
+        cls, reps = _row_classes(sig)
+
+
+_ROW_HASH: dict[int, np.ndarray] = {}
+
+
+def _row_classes(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Classes of equal rows of an int64 matrix: (class of each row, first row of each class),
+    classes numbered in the order of their first rows.
+
+    Rows are grouped by a 64-bit hash and each group is checked against its first row; only if
+    a hash collided are the rows compared whole (exact either way).
+    """
+    w = rows.shape[1]
+    mult = _ROW_HASH.get(w)
+    if mult is None:       # odd 64-bit multipliers, fixed per width
+        drawn = np.random.default_rng(w).integers(1, 2**63, size=w, dtype=np.uint64)
+        mult = _ROW_HASH[w] = np.bitwise_or(drawn, np.uint64(1))
+    _, first, inv = np.unique(rows.view(np.uint64) @ mult, return_index=True,
+                              return_inverse=True)
+    inv = inv.reshape(-1)
+    if not np.array_equal(rows, rows[first[inv]]):
+        whole = np.ascontiguousarray(rows).view(np.dtype((np.void, 8 * w))).reshape(-1)
+        _, first, inv = np.unique(whole, return_index=True, return_inverse=True)
+        inv = inv.reshape(-1)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return rank[inv], first[order]
+
+
 def dyna_sweep(q: np.ndarray, model: TransitionModel, params: Params) -> np.ndarray:
     """One Dyna sweep (eq. 5.10, α = Params.dyna_alpha) over all applicable pairs, in place.
 
     Synchronous: every backup uses the Q-table from before the sweep. Returns ``q``.
     """
     _check_shape(q, model)
-    target = model.backup(q, params)
     a = params.dyna_alpha
-    m = model.applicable
-    q[m] = (1.0 - a) * q[m] + a * target[m]
+    if not q.flags.c_contiguous:
+        target = model.backup(q, params)
+        m = model.applicable
+        q[m] = (1.0 - a) * q[m] + a * target[m]
+        return q
+    # :meth:`TransitionModel.backup` on the applicable pairs only (the others are not used):
+    # the same element-wise operations on the same values, about half the elements.
+    flat, p1, p2, r1, r2, n1, n2 = _applicable_pairs(model, params)
+    v = state_values(q)
+    g = params.gamma
+    target = p1 * (r1 + g * v[n1]) + p2 * (r2 + g * v[n2])
+    q_flat = q.reshape(-1)                                  # a view (contiguous)
+    q_flat[flat] = (1.0 - a) * q_flat[flat] + a * target
     return q
+
+
+def _applicable_pairs(model: TransitionModel, params: Params) -> tuple[np.ndarray, ...]:
+    """The applicable pairs' flat indices, p1, 1 − p1, rewards and next states (in
+    :meth:`TransitionModel.backup`'s terms), cached on the model per reward constants."""
+    key = (params.goal_reward, params.step_reward)
+    cached = model.__dict__.get("_applicable_pairs")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    r1, r2 = model.rewards(params)
+    flat = np.flatnonzero(model.applicable)
+    out = (flat, model.p1.ravel()[flat], (1.0 - model.p1).ravel()[flat], r1.ravel()[flat],
+           r2.ravel()[flat], model.next1.ravel()[flat], model.next2.ravel()[flat])
+    object.__setattr__(model, "_applicable_pairs", (key, out))
+    return out
 
 
 def greedy_policy(q: np.ndarray) -> np.ndarray:
@@ -894,29 +998,35 @@ def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPActi
             dropped.append(i)
     cols = action_map(old_actions, new_actions, maps)
     known = np.flatnonzero(cols >= 0)
-    acc = np.zeros((new.n_states, known.size))
-    cnt = np.zeros((new.n_states, known.size))
-    combos = np.ndindex(*(old.sizes[i] for i in dropped)) if dropped else iter([()])
-    for combo in combos:
-        for i, q in zip(dropped, combo, strict=True):
-            old_vals[:, i] = q
+    if dropped:
+        acc = np.zeros((new.n_states, known.size))
+        cnt = np.zeros((new.n_states, known.size))
+        for combo in np.ndindex(*(old.sizes[i] for i in dropped)):
+            for i, q in zip(dropped, combo, strict=True):
+                old_vals[:, i] = q
+            block = q_old[np.ix_(_ravel(old_vals, old.sizes), cols[known])]
+            finite = np.isfinite(block)
+            acc += np.where(finite, block, 0.0)
+            cnt += finite
+        has = cnt > 0
+    else:
+        # One ancestor per state (the usual growth): its values, as the mean of one value
+        # would give them (0.0 + x / 1.0, i.e. x with −0.0 made +0.0).
         block = q_old[np.ix_(_ravel(old_vals, old.sizes), cols[known])]
-        finite = np.isfinite(block)
-        acc += np.where(finite, block, 0.0)
-        cnt += finite
+        has = np.isfinite(block)
     if callable(base):
         if applicable is None:
             raise ValueError("grow_q: a callable base needs the applicable mask")
         inherited = np.zeros(applicable.shape, dtype=bool)
-        inherited[:, known] = cnt > 0
+        inherited[:, known] = has
         if (applicable & ~inherited).any():
             base = base()
         else:
             base = np.where(applicable, 0.0, NOT_APPLICABLE)
     out = np.array(base, dtype=float, copy=True)
     sub = out[:, known]
-    ok = (cnt > 0) & np.isfinite(sub)
-    sub[ok] = acc[ok] / cnt[ok]
+    ok = has & np.isfinite(sub)
+    sub[ok] = acc[ok] / cnt[ok] if dropped else block[ok] + 0.0
     out[:, known] = sub
     return out
 

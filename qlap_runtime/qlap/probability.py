@@ -62,13 +62,26 @@ def binary_entropy(p: float) -> float:
 def binary_entropy_array(p: np.ndarray) -> np.ndarray:
     """Vectorised :func:`binary_entropy`."""
     p = np.asarray(p, dtype=float)
+    # The usual case (posterior probabilities, all inside (0, 1)) needs no masking; two
+    # reductions decide it for less than the element-wise mask (NaN fails both tests).
+    if p.ndim and p.size and 0.0 < np.minimum.reduce(p, axis=None) \
+            and np.maximum.reduce(p, axis=None) < 1.0:
+        return -(p * np.log2(p) + (1 - p) * np.log2(1 - p))
     m = (p > 0) & (p < 1)
-    if p.ndim and m.all():          # the usual case (posterior probabilities): no masking
+    if p.ndim and m.all():
         return -(p * np.log2(p) + (1 - p) * np.log2(1 - p))
     out = np.zeros_like(p)
     q = p[m]
     out[m] = -(q * np.log2(q) + (1 - q) * np.log2(1 - q))
     return out
+
+
+# Memos of the two functions below, keyed by the counts' bytes: Algorithm 3 scores the same
+# contexts on the same stored activations again at every batch (a plan's second-order DBN
+# whose calls did not change, §5.4), and the functions are pure. Cleared when full.
+_MEMO_SIZE = 1 << 14
+_brel_memo: dict[tuple, tuple[float | None, int]] = {}
+_entropy_memo: dict[tuple, float] = {}
 
 
 def best_reliability(successes: np.ndarray, failures: np.ndarray, prior: float = 1.0,
@@ -80,13 +93,30 @@ def best_reliability(successes: np.ndarray, failures: np.ndarray, prior: float =
     """
     s = np.asarray(successes, dtype=float)
     f = np.asarray(failures, dtype=float)
-    ok = s >= min_successes
-    if not ok.any():
-        return None, -1
-    p = (s + prior) / (s + f + 2.0 * prior)
-    p = np.where(ok, p, -1.0)
-    i = int(np.argmax(p))
-    return float(p[i]), i
+    key = (s.tobytes(), f.tobytes(), prior, min_successes)
+    hit = _brel_memo.get(key)
+    if hit is not None:
+        return hit
+    out: tuple[float | None, int] = (None, -1)
+    if prior > 0 and s.size <= 64:
+        # The first maximum among the cells that count, as np.argmax below; p has no NaN
+        # (its denominator is ≥ 2·prior), so plain comparisons of the same floats agree.
+        p = (s + prior) / (s + f + 2.0 * prior)
+        best = -1.0
+        for i, (si, pi) in enumerate(zip(s.ravel().tolist(), p.ravel().tolist(), strict=True)):
+            if si >= min_successes and pi > best:
+                best, out = pi, (pi, i)
+    else:
+        ok = s >= min_successes
+        if ok.any():
+            p = (s + prior) / (s + f + 2.0 * prior)
+            p = np.where(ok, p, -1.0)
+            i = int(np.argmax(p))
+            out = (float(p.flat[i]), i)
+    if len(_brel_memo) >= _MEMO_SIZE:
+        _brel_memo.clear()
+    _brel_memo[key] = out
+    return out
 
 
 def dbn_entropy(successes: np.ndarray, failures: np.ndarray, prior: float = 1.0) -> float:
@@ -98,12 +128,21 @@ def dbn_entropy(successes: np.ndarray, failures: np.ndarray, prior: float = 1.0)
     """
     s = np.asarray(successes, dtype=float)
     f = np.asarray(failures, dtype=float)
+    key = (s.tobytes(), f.tobytes(), prior)
+    hit = _entropy_memo.get(key)
+    if hit is not None:
+        return hit
     n = s + f
     total = n.sum()
     if total <= 0:
-        return 1.0
-    p = (s + prior) / (n + 2.0 * prior)
-    return float(np.sum(binary_entropy_array(p) * (n / total)))
+        out = 1.0
+    else:
+        p = (s + prior) / (n + 2.0 * prior)
+        out = float(np.add.reduce(binary_entropy_array(p) * (n / total), axis=None))
+    if len(_entropy_memo) >= _MEMO_SIZE:
+        _entropy_memo.clear()
+    _entropy_memo[key] = out
+    return out
 
 
 def information_gain(labels: np.ndarray, split: int) -> float:

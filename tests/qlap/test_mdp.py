@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from qlap_runtime.qlap import mdp
 from qlap_runtime.qlap.mdp import (
     NOT_APPLICABLE,
     MDPAction,
@@ -504,3 +505,97 @@ def test_state_round_trips_through_strict_json() -> None:
     # npz-friendly: the same dict as arrays
     as_arrays = {k: np.asarray(v) for k, v in q_to_state(q).items()}
     np.testing.assert_array_equal(q_from_state(as_arrays), q)
+
+
+# --- value iteration on the bisimulation quotient ---------------------------------------------
+
+
+def _unreduced_value_iteration(model: TransitionModel, params: Params) -> np.ndarray:
+    """The sweeps of value_iteration over every state (no quotient)."""
+    r1, r2 = model.rewards(params)
+    p1 = model.p1
+    p2 = 1.0 - p1
+    return mdp._sweeps(model.initial_q(), p1 * r1 + p2 * r2, p1, p2, model.next1, model.next2,
+                       model.applicable, params)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_value_iteration_on_the_quotient_is_bit_identical(seed: int) -> None:
+    # W (var 3, 3 values) and C: rel(r, s) depends on C only, so states differing in W alone
+    # are bisimilar (W's own context moves aside, which every W value has the same of).
+    rng = np.random.default_rng(seed)
+    w_var = 3
+    space = PlanStateSpace.from_groups([[w_var], [C], [X], [Y]], {w_var: 3, C: 3, X: 2, Y: 2})
+    actions = build_actions(space, TOY_SPEC)
+    rel_a = rng.uniform(0.05, 1.0, len(actions)).round(int(rng.integers(1, 4)))
+    rel_c = rng.uniform(0.0, 1.0, 3)
+    model = TransitionModel.build(space, actions, TOY_SPEC, rel_a,
+                                  lambda st: float(rel_c[st[C]]))
+    r1, r2 = model.rewards(P)
+    er = model.p1 * r1 + (1.0 - model.p1) * r2
+    cls, reps = mdp._bisimilar(model.applicable, er, model.p1, model.next1, model.next2)
+    assert reps.size < space.n_states                       # something was merged
+    np.testing.assert_array_equal(cls[reps], np.arange(reps.size))
+    for params in (P, P.replace(value_iteration_max_sweeps=3)):
+        q = value_iteration(model, params)
+        assert q.tobytes() == _unreduced_value_iteration(model, params).tobytes()
+
+
+def test_row_classes_survive_hash_collisions(monkeypatch: pytest.MonkeyPatch) -> None:
+    rows = np.array([[1, 2], [3, 4], [1, 2], [5, 6], [3, 4]], dtype=np.int64)
+    cls, first = mdp._row_classes(rows)
+    np.testing.assert_array_equal(cls, [0, 1, 0, 2, 1])
+    np.testing.assert_array_equal(first, [0, 1, 3])
+    monkeypatch.setitem(mdp._ROW_HASH, 2, np.zeros(2, dtype=np.uint64))   # every hash equal
+    cls2, first2 = mdp._row_classes(rows)
+    np.testing.assert_array_equal(cls2, cls)
+    np.testing.assert_array_equal(first2, first)
+
+
+def test_dyna_sweep_on_applicable_pairs_is_bit_identical() -> None:
+    rng = np.random.default_rng(3)
+    w_var = 3
+    space = PlanStateSpace.from_groups([[w_var], [C], [X], [Y]], {w_var: 3, C: 3, X: 2, Y: 2})
+    actions = build_actions(space, TOY_SPEC)
+    model = TransitionModel.build(space, actions, TOY_SPEC, rng.uniform(0.1, 1.0, len(actions)),
+                                  rng.uniform(0.0, 1.0, space.n_states))
+    q = np.where(model.applicable, rng.normal(0.0, 3.0, model.applicable.shape), NOT_APPLICABLE)
+    a = P.dyna_alpha
+    expected = q.copy()
+    m = model.applicable
+    expected[m] = (1.0 - a) * q[m] + a * model.backup(q, P)[m]
+    for _ in range(2):                                      # the second sweep: cached pairs
+        expected2 = expected.copy()
+        expected2[m] = (1.0 - a) * expected[m] + a * model.backup(expected, P)[m]
+        got = dyna_sweep(q, model, P)
+        assert got is q and q.tobytes() == expected.tobytes()
+        expected = expected2
+    wide = np.zeros((q.shape[0], 2 * q.shape[1]))           # a non-contiguous table
+    wide[:, ::2] = q
+    dyna_sweep(wide[:, ::2], model, P)
+    assert np.ascontiguousarray(wide[:, ::2]).tobytes() == expected.tobytes()
+
+
+def test_grow_q_single_ancestor_matches_the_mean_bit_for_bit() -> None:
+    # A split of C's value 0 (one ancestor per new state): each inherited value is the mean of
+    # one value, 0.0 + x / 1.0, so −0.0 becomes +0.0 and every other value is kept exactly.
+    actions = build_actions(TOY_SPACE, TOY_SPEC)
+    model = TransitionModel.build(TOY_SPACE, actions, TOY_SPEC, [0.9, 0.9, 0.5], np.full(8, 0.5))
+    q_old = np.where(model.applicable, np.random.default_rng(0).normal(0, 3, (8, 3)),
+                     NOT_APPLICABLE)
+    q_old[0, 0] = -0.0
+    new_space, _ = TOY_SPACE.resized(C, 4, split_value_map(2, 0))
+    new_actions = build_actions(new_space, TOY_SPEC)
+    maps = compose_split_maps([(C, 0)], {C: 4, X: 2, Y: 2})
+    out = grow_q(q_old, TOY_SPACE, actions, new_space, new_actions, maps,
+                 np.zeros((new_space.n_states, len(new_actions))))
+    assert out is not None
+    state_map = new_space.all_values()[:, 0]
+    rows = maps[C][state_map] * 4 + new_space.all_values()[:, 1] * 2 + new_space.all_values()[:, 2]
+    cols = action_map(actions, new_actions, maps)
+    for s_new in range(new_space.n_states):
+        for j, j_old in enumerate(cols):
+            x = q_old[rows[s_new], j_old] if j_old >= 0 else np.nan
+            want = (0.0 + x) / 1.0 if np.isfinite(x) else 0.0
+            assert np.array([out[s_new, j]]).tobytes() == np.array([want]).tobytes()
+    assert np.signbit(q_old[0, 0]) and not np.signbit(out[0, 0])

@@ -59,3 +59,46 @@ def test_information_gain_hand_computed():
     # S = 1 1 1 0 split after 2: H(S)=0.811278; left pure, right {1,0} H=1 weight 1/2
     assert information_gain(np.array([1, 1, 1, 0]), 2) == pytest.approx(0.811278 - 0.5, abs=1e-6)
     assert math.isclose(information_gain(np.array([1, 0]), 0), 0.0)
+
+
+def _brel_reference(s, f, prior, min_successes):
+    """best_reliability as first written (all numpy, no memo)."""
+    s, f = np.asarray(s, dtype=float), np.asarray(f, dtype=float)
+    ok = s >= min_successes
+    if not ok.any():
+        return None, -1
+    p = np.where(ok, (s + prior) / (s + f + 2.0 * prior), -1.0)
+    i = int(np.argmax(p))
+    return float(p[i]), i
+
+
+def _entropy_reference(s, f, prior):
+    """dbn_entropy as first written (masked entropies, no memo)."""
+    s, f = np.asarray(s, dtype=float), np.asarray(f, dtype=float)
+    n = s + f
+    total = n.sum()
+    if total <= 0:
+        return 1.0
+    p = (s + prior) / (n + 2.0 * prior)
+    m = (p > 0) & (p < 1)
+    h = np.zeros_like(p)
+    h[m] = -(p[m] * np.log2(p[m]) + (1 - p[m]) * np.log2(1 - p[m]))
+    return float(np.sum(h * (n / total)))
+
+
+@pytest.mark.parametrize("n_cells", [1, 2, 9, 64, 65, 300])
+def test_fast_and_memoised_statistics_are_bit_identical(n_cells):
+    rng = np.random.default_rng(n_cells)
+    for _ in range(30):
+        s = rng.integers(0, 12, n_cells).astype(float)
+        f = rng.integers(0, 12, n_cells).astype(float)
+        s[rng.random(n_cells) < 0.3] = 0.0
+        for prior in (1.0, 0.5, 0.0):
+            for _twice in range(2):                 # the second call comes from the memo
+                with np.errstate(invalid="ignore"):     # prior 0: empty cells are 0/0
+                    assert best_reliability(s, f, prior, 5) == _brel_reference(s, f, prior, 5)
+                if prior > 0:
+                    assert dbn_entropy(s, f, prior) == _entropy_reference(s, f, prior)
+    # ties: the first best cell, as np.argmax
+    assert best_reliability([5, 7, 5, 7], [1, 3, 1, 3]) == _brel_reference(
+        [5, 7, 5, 7], [1, 3, 1, 3], 1.0, 5)
