@@ -169,7 +169,7 @@ async def run(session, ctx: RunContext) -> dict:
         same = last_saved[2] if last_saved[:2] == (agent.step_count,
                                                    commands.agent_changes) else None
         save_final_checkpoint(agent, out / "checkpoints", ctx.world, same_as=same)
-        from qlap_runtime.agent_run import summary_of
+        from qlap_runtime.metrics import summary_of
 
         summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed,
                              steps_done if controls.last_step is not None else ctx.steps,

@@ -184,7 +184,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 try:
                     obs = world.step(applied)
                 except Exception as exc:    # end the run after t (its motor was chosen)
-                    from qlap_runtime.agent_run import WorldFailed
+                    from qlap_runtime.errors import WorldFailed
 
                     failed = WorldFailed(ctx.world, t, exc)
                     stats["world_error"] = str(failed)

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from .cli import CliError
-from .metrics import METRICS_EVERY, METRICS_FILE, MetricsLog, knowledge_counts
+from .errors import WorldFailed
+from .metrics import METRICS_EVERY, METRICS_FILE, MetricsLog, summary_of
 from .qlap import Params
 from .qlap.agent import Agent
 from .qlap.checkpoint import (
@@ -30,18 +30,6 @@ from .qlap.checkpoint import (
 from .qlap.perception import InvalidObservation
 
 ProgressFn = Callable[[int, Agent], None]
-
-
-class WorldFailed(CliError):
-    """A world's ``step`` raised: the run stops after the outputs of what was learned so far
-    are written; the command line reports it in one line (exit status 1)."""
-
-    def __init__(self, world: str, step: int, exc: BaseException) -> None:
-        detail = " ".join(str(exc).split()) or "(no message)"
-        super().__init__(f"world {world} failed at step {step}: {type(exc).__name__}: "
-                         f"{detail[:300]}; what was learned so far is written", code=1)
-        self.world = world
-        self.step = step
 
 
 def params_for_world(world: Any, base: Params | None = None) -> Params:
@@ -59,26 +47,6 @@ def params_for_world(world: Any, base: Params | None = None) -> Params:
     if step_seconds is not None and float(step_seconds) != params.step_seconds:
         changes["step_seconds"] = float(step_seconds)
     return params.replace(**changes) if changes else params
-
-
-def summary_of(agent: Agent, world: Any, seed: int, steps: int, wall: float,
-               rejected: list[str]) -> dict[str, Any]:
-    """summary.json's figures of a run (docs/outputs.md); the counts are those of the metrics
-    log (:func:`~qlap_runtime.metrics.knowledge_counts`), so the two agree."""
-    n = knowledge_counts(agent)
-    c = agent.counters
-    return {
-        "world": getattr(world, "name", type(world).__name__), "seed": seed, "steps": steps,
-        "wall_time_s": round(wall, 3), "steps_per_s": round(steps / wall, 1) if wall else None,
-        "k": n["k"], "dbns": n["dbns"], "change_dbns": n["change_dbns"],
-        "magnitude_dbns": n["magnitude_dbns"], "reliable_dbns": n["reliable_dbns"],
-        "plans": n["plans"], "landmarks": n["landmarks"],
-        "reliable_actions": n["reliable_actions"],
-        "practice_calls": c.practice_calls, "babble_commands": c.babble_commands,
-        "practice_successes": c.successes, "practice_failures": c.failures,
-        "plans_created": c.plans_created, "plans_removed": c.plans_removed,
-        "rejected_observations": len(rejected), "rejected_examples": rejected[:20],
-    }
 
 
 def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,

@@ -8,20 +8,12 @@ import sys
 from pathlib import Path
 
 from .argtypes import count, positive_int
+from .errors import CliError
 
 DEFAULT_ACTOR_LAG = 500
 """Default batch lag L of the actor placements (docs/architecture.md §2: batches pipelined, the
 step chain never waits for them); the synchronous loop defaults to L = 0, Algorithm 2 to the
 letter."""
-
-
-class CliError(Exception):
-    """An expected error of the command line: main prints ``qlap COMMAND: message`` on one
-    line and exits with :attr:`code` (2: a bad input)."""
-
-    def __init__(self, message: str, code: int = 2) -> None:
-        super().__init__(message)
-        self.code = code
 
 
 class HelpFormatter(argparse.HelpFormatter):

@@ -26,9 +26,12 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from .qlap.checkpoint import atomic_write_bytes
+
+if TYPE_CHECKING:
+    from .qlap.agent import Agent
 
 METRICS_FILE = "metrics.jsonl"
 METRICS_EVERY = 1000
@@ -278,3 +281,23 @@ def follow_metrics(path: str | Path, on_line: LineFn, stop: threading.Event,
     thread = threading.Thread(target=run, name="qlap-metrics-follow", daemon=True)
     thread.start()
     return thread
+
+
+def summary_of(agent: Agent, world: Any, seed: int, steps: int, wall: float,
+               rejected: list[str]) -> dict[str, Any]:
+    """summary.json's figures of a run (docs/outputs.md); the counts are those of the metrics
+    log (:func:`~qlap_runtime.metrics.knowledge_counts`), so the two agree."""
+    n = knowledge_counts(agent)
+    c = agent.counters
+    return {
+        "world": getattr(world, "name", type(world).__name__), "seed": seed, "steps": steps,
+        "wall_time_s": round(wall, 3), "steps_per_s": round(steps / wall, 1) if wall else None,
+        "k": n["k"], "dbns": n["dbns"], "change_dbns": n["change_dbns"],
+        "magnitude_dbns": n["magnitude_dbns"], "reliable_dbns": n["reliable_dbns"],
+        "plans": n["plans"], "landmarks": n["landmarks"],
+        "reliable_actions": n["reliable_actions"],
+        "practice_calls": c.practice_calls, "babble_commands": c.babble_commands,
+        "practice_successes": c.successes, "practice_failures": c.failures,
+        "plans_created": c.plans_created, "plans_removed": c.plans_removed,
+        "rejected_observations": len(rejected), "rejected_examples": rejected[:20],
+    }

@@ -347,7 +347,7 @@ class LocalDriver:
         state) into ``out``; once."""
         if self.out is None or self._outputs_written:
             return
-        from qlap_runtime.agent_run import summary_of
+        from qlap_runtime.metrics import summary_of
         from qlap_runtime.qlap.checkpoint import atomic_write_json, save_final_checkpoint
 
         self._outputs_written = True
