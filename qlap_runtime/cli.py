@@ -598,7 +598,7 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     from .agent_run import params_for_world
     from .bus import keys
     from .metrics import METRICS_FILE, PlainProgress, follow_metrics
-    from .runtime.launcher import run_embedded, run_processes
+    from .placements.launcher import run_embedded, run_processes
 
     params = params_for_world(world, params)
     world.close()
@@ -638,7 +638,7 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
             summary = run_embedded(ctx, tuple(args.listen), record=args.record,
                                    watchers=watchers)
         else:
-            from .runtime.launcher import free_port
+            from .placements.launcher import free_port
 
             port = free_port()
             print(f"router on tcp/127.0.0.1:{port} (qlap tui/record/echo --connect "
@@ -675,8 +675,8 @@ def _cmd_actor(args: argparse.Namespace) -> int:
     from .bus import keys
     from .bus.cli import _client
     from .bus.config import BusConfigError
+    from .placements.launcher import run_actor
     from .qlap import Params
-    from .runtime.launcher import run_actor
 
     world = _make_world(args.world, "actor")
     if world is None:

@@ -17,8 +17,8 @@ import argparse
 
 def main() -> None:
     from actors.common import RunContext
+    from qlap_runtime.placements.launcher import run_embedded, run_processes
     from qlap_runtime.qlap import Params
-    from qlap_runtime.runtime.launcher import run_embedded, run_processes
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--world", default="core")

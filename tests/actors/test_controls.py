@@ -22,8 +22,8 @@ from qlap_runtime.agent_run import params_for_world, run_agent
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import TrioSubscriber
 from qlap_runtime.bus.schema import AgentStatus, Control, encode
+from qlap_runtime.placements.launcher import free_port, run_embedded_async
 from qlap_runtime.qlap import Params
-from qlap_runtime.runtime.launcher import free_port, run_embedded_async
 
 PARAMS = Params(babble_steps=1000, dbn_period=250, landmark_period=500, min_data_points=10)
 """Short periods and a low data threshold: DBNs from ~1,000 steps on (a few seconds)."""

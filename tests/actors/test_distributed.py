@@ -8,8 +8,8 @@ import sys
 
 import worlds
 from qlap_runtime.agent_run import params_for_world, run_agent
+from qlap_runtime.placements.launcher import free_port
 from qlap_runtime.qlap import Params
-from qlap_runtime.runtime.launcher import free_port
 
 STEPS, SEED, LAG, BABBLE = 2600, 4, 300, 2000
 

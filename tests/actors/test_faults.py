@@ -16,8 +16,8 @@ import worlds
 from actors.common import RunContext
 from qlap_runtime.agent_run import params_for_world, run_agent
 from qlap_runtime.bus.recorder import read_mcap
+from qlap_runtime.placements.launcher import run_processes
 from qlap_runtime.qlap import Params
-from qlap_runtime.runtime.launcher import run_processes
 from qlap_runtime.runtime.snapshot import latest_snapshot
 from qlap_runtime.runtime.supervisor import Supervisor
 

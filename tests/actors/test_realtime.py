@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from actors.common import RunContext
+from qlap_runtime.placements.launcher import run_embedded
 from qlap_runtime.qlap import Params
-from qlap_runtime.runtime.launcher import run_embedded
 
 PARAMS = Params(babble_steps=300, dbn_period=200, landmark_period=400)
 

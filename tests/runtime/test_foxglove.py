@@ -23,8 +23,8 @@ from qlap_runtime.bus.config import client_config
 from qlap_runtime.bus.foxglove import file_descriptor_set
 from qlap_runtime.bus.recorder import read_mcap, read_metadata, record
 from qlap_runtime.bus.schema import AgentStatus, Sense
+from qlap_runtime.placements.launcher import run_embedded, run_embedded_async
 from qlap_runtime.qlap import Params
-from qlap_runtime.runtime.launcher import run_embedded, run_embedded_async
 
 from .conftest import free_port
 

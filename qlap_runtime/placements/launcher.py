@@ -25,7 +25,7 @@ import zenoh
 from ..bus.bridge import AliveWatcher
 from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
-from .supervisor import Supervisor
+from ..runtime.supervisor import Supervisor
 
 ACTORS = ("perception", "contingency", "landmarks", "executor", "world")
 """Every actor of a run; the world starts last (it waits for the others)."""
