@@ -23,6 +23,7 @@ from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.variables import Event, VariableTable
 from qlap_runtime.runtime import snapshot as snap
 from qlap_runtime.runtime.lockstep import DeltaBook
+from qlap_runtime.runtime.watchdog import Slot
 
 log = logging.getLogger("qlap.actors")
 
@@ -39,6 +40,9 @@ class RunContext:
     out: Path | None = None
     checkpoint_every: int = 10_000
     extra: dict[str, Any] = field(default_factory=dict)
+    board: Any = field(default=None, repr=False, compare=False)
+    """The run's progress board (:mod:`~qlap_runtime.runtime.watchdog`), set by the launcher
+    in each process; not part of the JSON form."""
 
     @property
     def realtime(self) -> bool:
@@ -111,8 +115,12 @@ class StepInbox:
 
     def __init__(self, sub: TrioSubscriber, first: int = 0,
                  refill: Callable[[int], Awaitable[list]] | None = None,
-                 end: Controls | None = None) -> None:
+                 end: Controls | None = None, slot: Slot | None = None,
+                 topic: str = "") -> None:
         self.sub = sub
+        self.slot = slot if slot is not None else Slot()
+        """Where a wait is reported for the watchdog (:mod:`~qlap_runtime.runtime.watchdog`)."""
+        self.topic = topic
         self.buf: dict[int, Any] = {}
         self.next = first
         self.refill = refill
@@ -128,7 +136,16 @@ class StepInbox:
         else:
             self.buf[msg.step] = msg
 
-    async def get(self, step: int) -> Any:
+    async def get(self, step: int, at: int | None = None) -> Any:
+        """Step ``step``'s message (waited for; the wait is on the board, before passing step
+        ``at``, by default ``step``)."""
+        if step not in self.buf:
+            with self.slot.waiting(self.topic, step, at):
+                await self._wait_for(step)
+        self.next = max(self.next, step + 1)
+        return self.buf.pop(step)
+
+    async def _wait_for(self, step: int) -> None:
         while step not in self.buf:
             end = self.end
             if end is not None and end.ended(step):
@@ -146,8 +163,6 @@ class StepInbox:
                     self.add(msg)
             for r in batch:
                 self.add(r.msg)
-        self.next = max(self.next, step + 1)
-        return self.buf.pop(step)
 
     async def fill_from_replay(self, refill: Callable[[int], Awaitable[list]]) -> int:
         """Add the writer's logged messages from :attr:`next` on (a restarted consumer, after
@@ -344,8 +359,10 @@ class DeltaInbox:
     snapshot recomputes and publishes again the batches after its snapshot.
     """
 
-    def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> None:
+    def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter,
+                 slot: Slot | None = None) -> None:
         self.book = DeltaBook(ctx.params)
+        self.slot = slot if slot is not None else Slot()
         self.sub = TrioSubscriber(session, f"{keys.ROOT}/{ctx.run_id}/delta/*", counter=counter)
         self.wait_s = 0.0
         self.realtime = ctx.realtime
@@ -380,7 +397,9 @@ class DeltaInbox:
             self.book.waits += 1
             t0 = time.perf_counter()
             while not self.book.ready(step):
-                self._take(await self.sub.receive_batch())
+                computed, kind = self.book.missing(step)[0]
+                with self.slot.waiting(f"delta/{kind}", computed, step):
+                    self._take(await self.sub.receive_batch())
             self.wait_s += time.perf_counter() - t0
         return self.book.pop_due(step)
 

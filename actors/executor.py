@@ -29,7 +29,7 @@ from qlap_runtime import telemetry
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
 from qlap_runtime.bus.replay import ReplayLog
-from qlap_runtime.bus.schema import Control, Motor
+from qlap_runtime.bus.schema import Control, Motor, decode, encode
 from qlap_runtime.metrics import METRICS_EVERY, METRICS_FILE, MetricsLog
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import (
@@ -40,6 +40,7 @@ from qlap_runtime.qlap.checkpoint import (
     save_step_checkpoint,
 )
 from qlap_runtime.runtime.lockstep import batch_kinds
+from qlap_runtime.runtime.watchdog import slot_of
 
 from .common import (
     ControlError,
@@ -94,10 +95,18 @@ async def run(session, ctx: RunContext) -> dict:
             ReplayLog(session, ctx.run_id, "batchctx", ctx.replay_keep) as ctx_replay, \
             Controls(session, ctx, counter) as controls, \
             Display(session, ctx) as display:
-        deltas = DeltaInbox(session, ctx, counter)
+        slot = slot_of(ctx, NAME)
+        deltas = DeltaInbox(session, ctx, counter, slot)
         commands = Commands(agent, ctx, controls, counter, display, deltas)
+        # batchctx(s) of a batch at s + 1 went out before the snapshot at s, so a restarted
+        # executor never publishes it again: its snapshot carries the logged ones, served
+        # again to a batch actor restarted later from an older snapshot (docs/runtime.md).
+        ctx_key = keys.key(ctx.run_id, "batchctx")
+        for step, payload in resume.state.get("batchctx", []):
+            ctx_replay.append(int(step), decode(ctx_key, payload))
         try:
-            inbox = StepInbox(sub, first=resume.step + 1, end=controls)
+            inbox = StepInbox(sub, first=resume.step + 1, end=controls, slot=slot,
+                              topic="qstate")
             await resume_inputs(session, ctx, resume, inbox, "qstate", deltas, counter)
             async with trio.open_nursery() as nursery:
                 nursery.start_soon(commands.between_steps)
@@ -130,6 +139,7 @@ async def run(session, ctx: RunContext) -> dict:
                         ctx_replay.append(t, bc)
                     pub.put(motor)
                     replay.append(t, motor)
+                    slot.done(t)
                     steps_done += 1
                     if metrics is not None:
                         metrics.after_step(t + 1, agent)
@@ -143,8 +153,12 @@ async def run(session, ctx: RunContext) -> dict:
                     if snapshot_due(ctx, t):
                         snapshot_s.append(write_snapshot(ctx, NAME, t, deltas,
                                                          lambda d: save_agent(agent, d),
-                                                         rejected=rejected))
+                                                         rejected=rejected,
+                                                         batchctx=[
+                                                             [s, encode(m).decode()] for s, m
+                                                             in ctx_replay.entries()]))
                 nursery.cancel_scope.cancel()
+            slot.finished()
             commands.apply()
             display.finished = True
             if not commands.rc.message.startswith("run ended"):

@@ -14,6 +14,7 @@ from qlap_runtime.qlap.perception import InvalidObservation, Perception
 from qlap_runtime.qlap.quantity import Landmark
 from qlap_runtime.qlap.variables import VariableTable
 from qlap_runtime.runtime.snapshot import load_perception, save_perception
+from qlap_runtime.runtime.watchdog import slot_of
 
 from .common import (
     Controls,
@@ -76,9 +77,10 @@ async def run(session, ctx: RunContext) -> dict:
             Publisher(session, ctx.run_id, "qstate") as pub, \
             ReplayLog(session, ctx.run_id, "qstate", ctx.replay_keep) as replay, \
             Controls(session, ctx, counter, keep=False) as end:   # the world's end marker
-        deltas = DeltaInbox(session, ctx, counter)
+        slot = slot_of(ctx, NAME)
+        deltas = DeltaInbox(session, ctx, counter, slot)
         try:
-            inbox = StepInbox(sub, first=resume.step + 1, end=end)
+            inbox = StepInbox(sub, first=resume.step + 1, end=end, slot=slot, topic="sense")
             await resume_inputs(session, ctx, resume, inbox, "sense", deltas, counter)
             start = ctx.start
             last_observed = int(resume.state.get("last_observed", start - 1))
@@ -105,10 +107,12 @@ async def run(session, ctx: RunContext) -> dict:
                     out = qstate_of(p, table)
                 pub.put(out)
                 replay.append(t, out)
+                slot.done(t)
                 if snapshot_due(ctx, t):
                     snapshot_s.append(write_snapshot(
                         ctx, NAME, t, deltas, lambda d: save_perception(per, d),
                         last_observed=last_observed))
+            slot.finished()
         finally:
             deltas.close()
     return {"rejected": counter.snapshot().total, "rejected_observations": rejected_obs,

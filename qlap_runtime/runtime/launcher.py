@@ -59,9 +59,12 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     ``watchers`` coroutines ``task(session, ctx, stop)`` (e.g. the progress bar) run until
     the actors are done and ``stop`` is set."""
     from ..bus.recorder import record as record_bus
+    from .watchdog import DEFAULT_STALL_S, Board, Watchdog
 
     results: dict[str, Any] = {}
     ctx.extra.setdefault("placement", "embedded")
+    ctx.board = Board(ACTORS)
+    watchdog = Watchdog(ctx.board, float(ctx.extra.get("stall_s", 0) or 0) or DEFAULT_STALL_S)
     t0 = time.perf_counter()
     with zenoh.open(embedded_config(listen)) as session:
         ready = trio.Event()
@@ -76,6 +79,7 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
                                   ctx.run_id, record, stop)
             for watcher in watchers:
                 outer.start_soon(watcher, session, ctx, stop)
+            outer.start_soon(_watch_stalls, watchdog, stop)
             async with trio.open_nursery() as nursery:
                 for name in ACTORS:
                     nursery.start_soon(one, name)
@@ -85,6 +89,15 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
                     nursery.start_soon(task, session, ctx)
             stop.set()
     return _finish(ctx, "embedded", results, time.perf_counter() - t0)
+
+
+async def _watch_stalls(watchdog: Any, stop: trio.Event) -> None:
+    """The embedded placement's watchdog: raises RunStalled (ending the run) on no progress."""
+    while not stop.is_set():
+        with trio.move_on_after(1.0):
+            await stop.wait()
+        if not stop.is_set():
+            watchdog.check()
 
 
 async def _connected_actor(name: str, config: zenoh.Config, ctx: Any, watcher: Any,
@@ -124,7 +137,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) -> None:
+def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
+                   slot: Any = None) -> None:
     """Entry point of an actor's process (spawned: no state inherited).
 
     Ctrl-C is the launcher's business (it stops every actor): SIGINT is ignored here; SIGTERM,
@@ -137,6 +151,10 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) ->
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     ctx = RunContext.from_json(json.loads(ctx_json))
+    if slot is not None:                            # the supervisor's progress board
+        from .watchdog import Board
+
+        ctx.board = Board((name,), {name: slot})
     parent = os.getppid()
 
     async def watch(cancel: trio.CancelScope) -> None:

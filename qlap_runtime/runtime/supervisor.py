@@ -36,6 +36,12 @@ class ActorFailed(RuntimeError):
     """An actor died and could not be restarted: the run is stopped."""
 
 
+def _default_stall() -> float:
+    from .watchdog import DEFAULT_STALL_S
+
+    return DEFAULT_STALL_S
+
+
 @dataclass(frozen=True)
 class Restart:
     """One restart, as reported in summary.json's ``restarted``."""
@@ -57,7 +63,7 @@ class Supervisor:
     """
 
     def __init__(self, ctx: Any, endpoint: str, workdir: Path, names: tuple[str, ...],
-                 target: Callable[[str, str, str, str], None], *,
+                 target: Callable[..., None], *,
                  max_restarts: int = MAX_RESTARTS) -> None:
         self.ctx = ctx
         self.endpoint = endpoint
@@ -70,6 +76,12 @@ class Supervisor:
         self.attempts: dict[str, int] = dict.fromkeys(names, 0)
         self.restarts: list[Restart] = []
         self._spawn = mp.get_context("spawn")
+        from .watchdog import SIZE, Board, Watchdog
+        # The progress board in shared memory: each incarnation of an actor gets its slot.
+        self.shared = {n: self._spawn.RawArray("d", SIZE) for n in names}
+        self.board = Board(names, self.shared)
+        self.watchdog = Watchdog(self.board, float(ctx.extra.get("stall_s", 0) or 0)
+                                 or _default_stall())
 
     def result_path(self, name: str) -> Path:
         return self.workdir / f"{name}.json"
@@ -78,11 +90,13 @@ class Supervisor:
         """Start (or start again) one actor's process."""
         ctx_json = self.ctx.to_json()
         ctx_json["extra"] = {**ctx_json["extra"], **(extra or {})}
+        self.board.slot(name).restarted()
         p = self._spawn.Process(target=self.target, name=f"qlap-{name}",
                                 args=(name, json.dumps(ctx_json), self.endpoint,
-                                      str(self.result_path(name))))
+                                      str(self.result_path(name)), self.shared[name]))
         p.start()
         self.procs[name] = p
+        self.watchdog.reset()
 
     def start_all(self) -> None:
         for name in self.names:
@@ -90,12 +104,16 @@ class Supervisor:
 
     def check(self) -> bool:
         """Restart the actors that died since the last call; True while any is running.
-        Raises :class:`ActorFailed` for a death that cannot be recovered."""
+        Raises :class:`ActorFailed` for a death that cannot be recovered, and
+        :class:`~.watchdog.RunStalled` for a run that makes no progress."""
         for name, p in list(self.procs.items()):
             if p.is_alive() or p.exitcode in (0, None):
                 continue
             self._restart(name, p.exitcode)
-        return any(p.is_alive() for p in self.procs.values())
+        running = any(p.is_alive() for p in self.procs.values())
+        if running:
+            self.watchdog.check()
+        return running
 
     def _restart(self, name: str, code: int) -> None:
         self.procs[name].join(1)
@@ -124,9 +142,16 @@ class Supervisor:
 
     def stop(self, timeout: float = 10.0) -> None:
         """Terminate (SIGTERM: each closes its session) and reap every process still running."""
+        import os
+        import signal
+
         for p in self.procs.values():
             if p.is_alive():
                 p.terminate()
+                try:
+                    os.kill(p.pid, signal.SIGCONT)  # a stopped process gets its SIGTERM too
+                except (ProcessLookupError, TypeError):
+                    pass
         for p in self.procs.values():
             p.join(timeout)
             if p.is_alive():                # pragma: no cover - a stuck actor
