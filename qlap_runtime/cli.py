@@ -315,6 +315,7 @@ def expected_error(exc: BaseException) -> BaseException | None:
     expected: list[type] = [CliError, OSError]
     for module, name in (("zenoh", "ZError"), ("gymnasium.error", "Error"),
                          ("worlds.registry", "WorldSpecError"),
+                         ("qlap_runtime.runtime.supervisor", "ActorFailed"),
                          ("qlap_runtime.bus.config", "BusConfigError")):
         if module in sys.modules and isinstance(getattr(sys.modules[module], name, None), type):
             expected.append(getattr(sys.modules[module], name))
@@ -431,28 +432,15 @@ def default_run_dir(world: str, seed: int, root: Path = Path("runs")) -> Path:
 
 def _prepare_out(args: argparse.Namespace) -> Path | None:
     """The run directory (``--out`` or the default), created and checked writable with a
-    probe file before the run starts; None after a one-line error."""
-    import os
+    probe file and for room for a checkpoint before the run starts
+    (:func:`~qlap_runtime.runtime.outputs.check_out`); None after a one-line error."""
+    from .runtime.outputs import OutputError, check_out
 
     out = args.out if args.out is not None else default_run_dir(args.world, args.seed)
-    if out.exists() and not out.is_dir():
-        print(f"qlap run: --out {out}: exists and is not a directory", file=sys.stderr)
-        return None
-    probe = out / f".qlap-probe-{os.getpid()}"
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        with open(probe, "wb") as f:
-            f.write(b"\0" * 65536)
-            f.flush()
-            os.fsync(f.fileno())
-        probe.unlink()
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        print(f"qlap run: --out {out}: cannot write there ({reason})", file=sys.stderr)
-        try:
-            probe.unlink(missing_ok=True)
-        except OSError:
-            pass
+        check_out(out)
+    except OutputError as exc:
+        print(f"qlap run: {exc}", file=sys.stderr)
         return None
     args.run_dir = out
     print(f"run directory: {out}", flush=True)

@@ -11,6 +11,7 @@ the same seed and parameters.
 from __future__ import annotations
 
 import json
+import os
 import socket
 import threading
 import time
@@ -25,6 +26,7 @@ import zenoh
 from ..bus.bridge import AliveWatcher
 from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
+from .outputs import check_out
 from .supervisor import Supervisor
 
 ACTORS = ("perception", "contingency", "landmarks", "executor", "world")
@@ -63,6 +65,8 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
 
     results: dict[str, Any] = {}
     ctx.extra.setdefault("placement", "embedded")
+    if ctx.out is not None:
+        check_out(Path(ctx.out))
     ctx.board = Board(ACTORS)
     watchdog = Watchdog(ctx.board, float(ctx.extra.get("stall_s", 0) or 0) or DEFAULT_STALL_S)
     t0 = time.perf_counter()
@@ -166,10 +170,33 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
                         return
         cancel.cancel()                             # the launcher died: stop, close the session
 
-    result = trio.run(_connected_actor, name, client_config([endpoint]), ctx, watch, 60)
-    if result is None:
-        raise SystemExit(143)                       # stopped before the end of the run
-    atomic_write_json(Path(result_path), result)
+    try:
+        result = trio.run(_connected_actor, name, client_config([endpoint]), ctx, watch, 60)
+        if result is None:
+            raise SystemExit(143)                   # stopped before the end of the run
+        atomic_write_json(Path(result_path), result)
+    except Exception as exc:
+        # One line for the supervisor (it decides whether a restart can help, and says why
+        # the run stopped); the traceback of a bug still goes to stderr.
+        from ..cli import expected_error
+
+        _write_error(Path(result_path), exc)
+        if expected_error(exc) is not None:
+            raise SystemExit(1) from None
+        raise
+
+
+def _write_error(result_path: Path, exc: BaseException) -> None:
+    from ..cli import expected_error, one_line
+
+    leaf = expected_error(exc) or exc
+    kind = "OSError" if isinstance(leaf, OSError) else type(leaf).__name__
+    try:
+        atomic_write_json(result_path.with_suffix(".error.json"),
+                          {"type": kind, "message": f"{type(leaf).__name__}: "
+                                                    f"{one_line(leaf)}"[:500]})
+    except OSError:
+        pass
 
 
 def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, *,
@@ -193,6 +220,21 @@ def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, 
         return _run_processes(ctx, listen_port, poll, record, on_poll)
     finally:
         signal.signal(signal.SIGTERM, previous)
+        _reap_children()
+
+
+def _reap_children() -> None:
+    """Leave no process behind in the launcher's group: every actor process was joined by the
+    supervisor; multiprocessing's resource tracker (started with the first spawn) is stopped and
+    reaped here too (it is started again if this process spawns later)."""
+    import multiprocessing as mp
+    from multiprocessing import resource_tracker
+
+    mp.active_children()
+    try:
+        resource_tracker._resource_tracker._stop()   # type: ignore[attr-defined]
+    except Exception:                                # pragma: no cover - older/newer Pythons
+        pass
 
 
 def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path | None,
@@ -201,10 +243,14 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
 
     port = listen_port or free_port()
     ctx.extra.setdefault("placement", "processes")
+    if ctx.out is not None:
+        check_out(Path(ctx.out))
     endpoint = f"tcp/127.0.0.1:{port}"
     t0 = time.perf_counter()
+    remove_stale_run_dirs()
     with zenoh.open(router_config([endpoint])) as router, \
-            tempfile.TemporaryDirectory(prefix="qlap-run-") as tmp:
+            tempfile.TemporaryDirectory(prefix=RUN_DIR_PREFIX) as tmp:
+        (Path(tmp) / OWNER_FILE).write_text(f"{os.getpid()}\n")
         run_ctx = type(ctx).from_json(ctx.to_json())
         run_ctx.extra.setdefault("snapshot_dir", str(Path(tmp) / "snapshots"))
         recorder = _Recorder(router, ctx.run_id, record, ctx.to_json()) \
@@ -222,6 +268,42 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
                 recorder.stop()
         results = sup.results()
     return _finish(ctx, "processes", results, time.perf_counter() - t0, sup.report())
+
+
+RUN_DIR_PREFIX = "qlap-run-"
+OWNER_FILE = "launcher.pid"
+
+
+def remove_stale_run_dirs(root: Path | None = None) -> list[Path]:
+    """Remove the temporary directories (snapshots, results) of processes runs whose launcher
+    died without cleaning up (SIGKILL): those whose ``launcher.pid`` names no live process, or
+    that have none and are over a day old. Returns what was removed."""
+    import shutil
+    import tempfile
+
+    root = Path(root) if root is not None else Path(tempfile.gettempdir())
+    removed = []
+    for d in root.glob(f"{RUN_DIR_PREFIX}*"):
+        try:
+            if not d.is_dir() or d.is_symlink() or d.stat().st_uid != os.getuid():
+                continue
+            owner = d / OWNER_FILE
+            if owner.exists():
+                pid = int(owner.read_text().split()[0])
+                try:
+                    os.kill(pid, 0)
+                    continue                        # its launcher is running
+                except ProcessLookupError:
+                    pass
+                except PermissionError:
+                    continue
+            elif time.time() - d.stat().st_mtime < 86400:
+                continue
+            shutil.rmtree(d, ignore_errors=True)
+            removed.append(d)
+        except (OSError, ValueError, IndexError):
+            continue
+    return removed
 
 
 class _Recorder:

@@ -115,10 +115,29 @@ class Supervisor:
             self.watchdog.check()
         return running
 
+    def error_of(self, name: str) -> dict[str, str] | None:
+        """The one-line error the actor's process wrote before dying, if any."""
+        path = self.result_path(name).with_suffix(".error.json")
+        try:
+            err = json.loads(path.read_text())
+            path.unlink()
+        except (OSError, ValueError):
+            return None
+        return err if isinstance(err, dict) else None
+
     def _restart(self, name: str, code: int) -> None:
         self.procs[name].join(1)
+        err = self.error_of(name)
+        why = f" ({err.get('message')})" if err else ""
+        world = self.procs.get("world")
+        if err is not None and err.get("type") == "OSError":
+            raise ActorFailed(f"actor {name} exited with code {code}{why}; a restart cannot "
+                              "help: run stopped")
+        if name != "world" and world is not None and world.exitcode == 0:
+            raise ActorFailed(f"actor {name} exited with code {code}{why} after the world "
+                              "finished; its inputs cannot be replayed: run stopped")
         if name not in RESTARTABLE:
-            raise ActorFailed(f"actor {name} exited with code {code}; the {name} actor cannot "
+            raise ActorFailed(f"actor {name} exited with code {code}{why}; the {name} actor cannot "
                               "be restarted (its physics state is not snapshotted): run stopped")
         if self.snapshot_dir is None:
             raise ActorFailed(f"actor {name} exited with code {code}; restarting an actor needs "
