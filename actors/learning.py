@@ -42,6 +42,7 @@ from .common import (
     world_variables,
     write_snapshot,
 )
+from .rules import batchctx_rule, qstate_rule
 
 ROLES = {"contingency": "dbn", "landmarks": "landmarks"}
 
@@ -67,22 +68,28 @@ async def run(session, ctx: RunContext, role: str) -> dict:
             Controls(session, ctx, counter, keep=False) as end, \
             TrioSubscriber(session, keys.key(ctx.run_id, "batchctx"), counter=counter) as bsub:
         slot = slot_of(ctx, role)
-        deltas = DeltaInbox(session, ctx, counter, slot)
+        deltas = DeltaInbox(session, ctx, counter, slot, n_vars=len(learner.table))
+        names = [v.name for v in learner.table]
         out = Outbox(pub, replay, kind, ctx.params.batch_lag, in_flight, slot)
         try:
-            inbox = StepInbox(sub, first=resume.step + 1, end=end, slot=slot, topic="qstate")
+            window = None if ctx.realtime else ctx.replay_keep
+            inbox = StepInbox(sub, first=resume.step + 1, end=end, slot=slot, topic="qstate",
+                              counter=counter, key=keys.key(ctx.run_id, "qstate"),
+                              window=window, rule=qstate_rule(names))
             for d in resume.state.get("own", []):      # published before the snapshot
                 out.log(DeltaMsg(kind, d))
             await resume_inputs(session, ctx, resume, inbox, "qstate", deltas, counter)
             # The executor's state before each batch (§6.2.1); the one before the first batch
             # after a snapshot may be of the snapshot's own step.
             contexts = StepInbox(bsub, first=resume.step, end=end, slot=slot,
-                                 topic="batchctx")
+                                 topic="batchctx", counter=counter,
+                                 key=keys.key(ctx.run_id, "batchctx"), window=window,
+                                 rule=batchctx_rule(len(learner.table)))
             if resume.restarted:
                 await contexts.fill_from_replay(lambda step: fetch_replay(
                     session, ctx.run_id, "batchctx", step, counter=counter))
             for entry in replay.entries():
-                deltas.add(entry[1])            # its own deltas not yet applied here
+                deltas.add(entry[1], live=False)    # its own deltas not yet applied here
             snapshot_pending = False
             async with trio.open_nursery() as nursery:
                 for t in range(resume.step + 1, ctx.start + ctx.steps):
@@ -133,13 +140,13 @@ async def _context_before(contexts: StepInbox, t: int, start: int,
         if t - 1 < start:
             return None                       # before the run's first step: none published
         for old in [k for k in contexts.buf if k < t - 1]:
-            del contexts.buf[old]              # batches of the other actor's kind only
+            contexts.drop(old)                 # batches of the other actor's kind only
         try:
             return await contexts.get(t - 1, at=t)
         except RunEnded:
             return None
     for r in contexts.sub.receive_nowait():
-        contexts.add(r.msg)
+        contexts.add(r.msg, len(r.payload))
     if not contexts.buf:
         return None
     latest = max(contexts.buf)

@@ -78,9 +78,13 @@ async def run(session, ctx: RunContext) -> dict:
             ReplayLog(session, ctx.run_id, "qstate", ctx.replay_keep) as replay, \
             Controls(session, ctx, counter, keep=False) as end:   # the world's end marker
         slot = slot_of(ctx, NAME)
-        deltas = DeltaInbox(session, ctx, counter, slot)
+        deltas = DeltaInbox(session, ctx, counter, slot, n_vars=len(table))
         try:
-            inbox = StepInbox(sub, first=resume.step + 1, end=end, slot=slot, topic="sense")
+            # On the step chain: sense(t + 1) exists only once qstate(t) went out (window 1;
+            # unknown variables are rejected by perceive, as in the synchronous loop).
+            inbox = StepInbox(sub, first=resume.step + 1, end=end, slot=slot, topic="sense",
+                              counter=counter, key=keys.key(ctx.run_id, "sense"),
+                              window=None if ctx.realtime else 1)
             await resume_inputs(session, ctx, resume, inbox, "sense", deltas, counter)
             start = ctx.start
             last_observed = int(resume.state.get("last_observed", start - 1))

@@ -42,6 +42,7 @@ from qlap_runtime.qlap.perception import MAX_ABS_VALUE
 from qlap_runtime.runtime.watchdog import slot_of
 
 from .common import ControlError, Controls, RunContext, RunControl, StepInbox
+from .rules import motor_rule
 
 NAME = "world"
 OTHERS_END_S = 120.0
@@ -95,7 +96,12 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 Controls(session, ctx, counter) as controls, \
                 Publisher(session, ctx.run_id, "control") as end_marker:
             start = ctx.start
-            inbox = StepInbox(sub, first=start, slot=slot, topic="motor")
+            # A motor for a step the world has not sensed yet cannot be the executor's: the
+            # lockstep window is 0 (docs/runtime.md, "Rules on messages").
+            inbox = StepInbox(sub, first=start, slot=slot, topic="motor", counter=counter,
+                              key=keys.key(ctx.run_id, "motor"),
+                              window=None if ctx.realtime else 0,
+                              rule=motor_rule(world.variables))
             last_view = 0.0
             if ready is not None:
                 await ready.wait()
@@ -185,7 +191,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                     if motor is None:
                         stats["late_ticks"] = stats.get("late_ticks", 0) + 1
                     for old in [k for k in inbox.buf if k <= t]:
-                        del inbox.buf[old]          # motors that came after their deadline
+                        inbox.drop(old)             # motors that came after their deadline
                 else:
                     motor = await inbox.get(t)
                 stats["wait_s"] += time.perf_counter() - t0

@@ -58,6 +58,7 @@ def test_executor_then_contingency_killed_around_a_snapshot_end_as_the_sync_loop
     print(f"two restarts, {STEPS} steps in {wall:.1f} s")
 
 
+@pytest.mark.slow
 def test_a_stopped_actor_is_a_stall_named_in_one_line_in_bounded_time(tmp_path):
     """SIGSTOP (alive, no progress): the supervisor sees no step for stall_s and stops."""
     ctx = context(tmp_path, BASE, 7, "t-stall")
