@@ -98,7 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                      help="also listen on ENDPOINT (e.g. tcp/127.0.0.1:7447) so outside "
                           "subscribers (qlap tui/record/echo --connect) can attach "
-                          "(embedded placement and the terminal UI)")
+                          "(embedded placement and the terminal UI); they authenticate with "
+                          "<out>/bus-credentials.json, written for the run")
     run.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
                      help="record every bus message of the run to an MCAP file "
                           "(embedded and processes placements)")
@@ -243,6 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
     tui_p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT",
                        help="endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
     tui_p.add_argument("--run", default=None, help="run id (default: the first one heard)")
+    tui_p.add_argument("--credentials", type=Path, default=None, metavar="FILE",
+                       help="the run's bus-credentials.json (user tui; default: "
+                            "$QLAP_CREDENTIALS)")
 
     worlds_p = sub.add_parser(
         "worlds", help="list the registered worlds with their descriptions and tasks",
@@ -357,15 +361,19 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 
     from tui import QlapApp
 
+    from .bus.auth import UI_USER
+    from .bus.cli import credentials_for
     from .bus.config import client_config
 
+    user, password = credentials_for(args.credentials, UI_USER)
+    auth = {"user": user, "password": password} if user else {}
     try:
-        zenoh.open(client_config(args.connect)).close()
+        zenoh.open(client_config(args.connect, **auth)).close()
     except zenoh.ZError as exc:
         raise CliError(f"cannot connect to {', '.join(args.connect)}: {one_line(exc)}",
                        code=1) from None
     try:
-        app = QlapApp(connect=args.connect, run_id=args.run)
+        app = QlapApp(connect=args.connect, run_id=args.run, **auth)
     except ValueError as exc:
         raise CliError(f"--run {args.run}: {exc}") from None
     app.run()
@@ -619,6 +627,12 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
                      extra=extra)
     print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
           f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
+    from .bus.auth import CREDENTIALS_FILE
+
+    credentials = out / CREDENTIALS_FILE
+    if args.listen:
+        print(f"listening on {', '.join(args.listen)} with authentication: qlap tui --connect "
+              f"{args.listen[0]} --credentials {credentials}", file=sys.stderr)
     # Progress: the rich bar fed from the bus in a terminal (embedded); otherwise plain lines
     # from the metrics log the executor writes (the same counts as the summary).
     plain = None
@@ -637,8 +651,9 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
             from .runtime.launcher import free_port
 
             port = free_port()
-            print(f"router on tcp/127.0.0.1:{port} (qlap tui/record/echo --connect "
-                  f"tcp/127.0.0.1:{port})", file=sys.stderr)
+            print(f"router on tcp/127.0.0.1:{port} with authentication (qlap tui/record/echo "
+                  f"--connect tcp/127.0.0.1:{port} --credentials {credentials})",
+                  file=sys.stderr)
             summary = run_processes(ctx, port, record=args.record)
     finally:
         if plain is not None:

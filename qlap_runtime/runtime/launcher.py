@@ -67,10 +67,11 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     ctx.extra.setdefault("placement", "embedded")
     if ctx.out is not None:
         check_out(Path(ctx.out))
+    auth = _listen_auth(ctx, listen)
     ctx.board = Board(ACTORS)
     watchdog = Watchdog(ctx.board, float(ctx.extra.get("stall_s", 0) or 0) or DEFAULT_STALL_S)
     t0 = time.perf_counter()
-    with zenoh.open(embedded_config(listen)) as session:
+    with zenoh.open(embedded_config(listen, **auth)) as session:
         ready = trio.Event()
         stop = trio.Event()
 
@@ -93,6 +94,25 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
                     nursery.start_soon(task, session, ctx)
             stop.set()
     return _finish(ctx, "embedded", results, time.perf_counter() - t0)
+
+
+def _listen_auth(ctx: Any, listen: tuple[str, ...]) -> dict[str, Any]:
+    """Authorisation by default for an embedded run that listens (docs/security.md): fresh
+    ``tui`` and ``viewer`` credentials and the run's ACL; the credentials go to
+    ``<out>/bus-credentials.json`` (mode 0600), or ``extra["credentials"]``."""
+    if not listen:
+        return {}
+    from ..bus.auth import CREDENTIALS_FILE, run_acl, run_users, write_credentials
+
+    users = run_users()
+    where = ctx.extra.get("credentials") or (
+        Path(ctx.out) / CREDENTIALS_FILE if ctx.out is not None else None)
+    if where is None:
+        import tempfile
+
+        where = Path(tempfile.mkdtemp(prefix=f"qlap-{ctx.run_id}-")) / CREDENTIALS_FILE
+    ctx.extra["credentials"] = str(write_credentials(Path(where), listen, users))
+    return {"users": users, "acl": run_acl(users)}
 
 
 async def _watch_stalls(watchdog: Any, stop: trio.Event) -> None:
@@ -142,7 +162,7 @@ def free_port() -> int:
 
 
 def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
-                   slot: Any = None) -> None:
+                   slot: Any = None, password: str | None = None) -> None:
     """Entry point of an actor's process (spawned: no state inherited).
 
     Ctrl-C is the launcher's business (it stops every actor): SIGINT is ignored here; SIGTERM,
@@ -171,7 +191,9 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
         cancel.cancel()                             # the launcher died: stop, close the session
 
     try:
-        result = trio.run(_connected_actor, name, client_config([endpoint]), ctx, watch, 60)
+        auth = {"user": name, "password": password} if password else {}
+        result = trio.run(_connected_actor, name, client_config([endpoint], **auth), ctx,
+                          watch, 60)
         if result is None:
             raise SystemExit(143)                   # stopped before the end of the run
         atomic_write_json(Path(result_path), result)
@@ -248,14 +270,23 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
     endpoint = f"tcp/127.0.0.1:{port}"
     t0 = time.perf_counter()
     remove_stale_run_dirs()
-    with zenoh.open(router_config([endpoint])) as router, \
+    # Authorisation by default (docs/security.md): a password per actor, the UI and a viewer,
+    # and the ACL of examples/router.json5; the UI's and viewer's in <out>/bus-credentials.json.
+    from ..bus.auth import CREDENTIALS_FILE, run_acl, run_users, write_credentials
+
+    users = run_users(ACTORS)
+    if ctx.out is not None:
+        ctx.extra["credentials"] = str(write_credentials(Path(ctx.out) / CREDENTIALS_FILE,
+                                                         [endpoint], users))
+    with zenoh.open(router_config([endpoint], users=users, acl=run_acl(users))) as router, \
             tempfile.TemporaryDirectory(prefix=RUN_DIR_PREFIX) as tmp:
         (Path(tmp) / OWNER_FILE).write_text(f"{os.getpid()}\n")
         run_ctx = type(ctx).from_json(ctx.to_json())
         run_ctx.extra.setdefault("snapshot_dir", str(Path(tmp) / "snapshots"))
         recorder = _Recorder(router, ctx.run_id, record, ctx.to_json()) \
             if record is not None else None
-        sup = Supervisor(run_ctx, endpoint, Path(tmp), ACTORS, _actor_process)
+        sup = Supervisor(run_ctx, endpoint, Path(tmp), ACTORS, _actor_process,
+                         passwords={a: users[a] for a in ACTORS})
         try:
             sup.start_all()
             while sup.check():

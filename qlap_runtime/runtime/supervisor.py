@@ -64,13 +64,16 @@ class Supervisor:
 
     def __init__(self, ctx: Any, endpoint: str, workdir: Path, names: tuple[str, ...],
                  target: Callable[..., None], *,
-                 max_restarts: int = MAX_RESTARTS) -> None:
+                 max_restarts: int = MAX_RESTARTS,
+                 passwords: dict[str, str] | None = None) -> None:
         self.ctx = ctx
         self.endpoint = endpoint
         self.workdir = Path(workdir)
         self.names = names
         self.target = target
         self.max_restarts = max_restarts
+        self.passwords = dict(passwords or {})
+        """Each actor's password on the router (given to its process, never written)."""
         self.snapshot_dir = None if ctx.snapshot_dir is None else Path(ctx.snapshot_dir)
         self.procs: dict[str, Any] = {}
         self.attempts: dict[str, int] = dict.fromkeys(names, 0)
@@ -93,7 +96,8 @@ class Supervisor:
         self.board.slot(name).restarted()
         p = self._spawn.Process(target=self.target, name=f"qlap-{name}",
                                 args=(name, json.dumps(ctx_json), self.endpoint,
-                                      str(self.result_path(name)), self.shared[name]))
+                                      str(self.result_path(name)), self.shared[name],
+                                      self.passwords.get(name)))
         p.start()
         self.procs[name] = p
         self.watchdog.reset()
