@@ -438,6 +438,29 @@ def default_run_dir(world: str, seed: int, root: Path = Path("runs")) -> Path:
     return path
 
 
+def source_run(checkpoint: Path) -> Path | None:
+    """The run directory a checkpoint belongs to (``<run>/checkpoints/<name>``, links
+    followed), or None for a checkpoint outside a run."""
+    for path in (Path(checkpoint).absolute(), Path(checkpoint).resolve()):
+        if path.parent.name == "checkpoints":
+            return path.parent.parent.resolve()
+    return None
+
+
+def resume_clash(checkpoint: Path, out: Path | None) -> str | None:
+    """Why ``--resume checkpoint --out out`` would write over the run the checkpoint comes
+    from (its knowledge.json, summary.json, final/ and later checkpoints), or None. Without
+    ``--out`` the run goes to a new default directory."""
+    run = source_run(checkpoint)
+    if run is None or out is None:
+        return None
+    target = Path(out).resolve()
+    if target == run or target.is_relative_to(run) or run.is_relative_to(target):
+        return (f"--out {out} would write over the run the checkpoint comes from ({run}): "
+                "give a new --out")
+    return None
+
+
 def _prepare_out(args: argparse.Namespace) -> Path | None:
     """The run directory (``--out`` or the default), created and checked writable with a
     probe file and for room for a checkpoint before the run starts
@@ -505,6 +528,11 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
         return 2
     agent = None
     if args.resume is not None:
+        clash = resume_clash(args.resume, args.out)
+        if clash is not None:
+            print(f"qlap run: --resume: {clash}", file=sys.stderr)
+            world.close()
+            return 2
         try:
             agent = load_agent(args.resume)
         except CheckpointError as exc:
