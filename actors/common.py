@@ -207,8 +207,9 @@ class StepInbox:
                 else:
                     with trio.move_on_after(REFILL_AFTER_S):
                         batch = await self.sub.receive_batch()
-            if self.refill is not None and not batch and not (end and end.ended(step)) \
-                    and any(k > step for k in self.buf):
+            # A restarted actor idle for REFILL_AFTER_S asks the replay log again: a gap, or
+            # a writer that was itself restarting when this actor first asked (chaos trials).
+            if self.refill is not None and not batch and not (end and end.ended(step)):
                 for msg in await self.refill(step):
                     self.add(msg, live=False)
             for r in batch:
@@ -426,6 +427,8 @@ class DeltaInbox:
         self.wait_s = 0.0
         self.realtime = ctx.realtime
         self.stale = 0
+        self.refill: Callable[[], Awaitable[list]] | None = None
+        """Set for a restarted actor (:meth:`catch_up`): fetch the delta logs again."""
 
     def add(self, msg: DeltaMsg, size: int = 0, live: bool = True) -> None:
         """Keep a delta until it is due (counted and dropped if it breaks a rule)."""
@@ -472,7 +475,11 @@ class DeltaInbox:
     async def catch_up(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> int:
         """A restarted actor: add every delta the learners' replay logs hold (after
         subscribing, so none published meanwhile is lost); return how many came back."""
-        msgs = await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
+        async def refill() -> list:
+            return await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
+
+        self.refill = refill
+        msgs = await refill()
         for msg in msgs:
             self.add(msg, live=False)
         return len(msgs)
@@ -485,7 +492,18 @@ class DeltaInbox:
             while not self.book.ready(step):
                 computed, kind = self.book.missing(step)[0]
                 with self.slot.waiting(f"delta/{kind}", computed, step):
-                    self._take(await self.sub.receive_batch())
+                    if self.refill is None:
+                        self._take(await self.sub.receive_batch())
+                        continue
+                    # Restarted: idle for REFILL_AFTER_S, ask the learners' replay logs
+                    # again (a learner that was itself restarting when this actor asked).
+                    batch: list = []
+                    with trio.move_on_after(REFILL_AFTER_S):
+                        batch = await self.sub.receive_batch()
+                    self._take(batch)
+                    if not batch:
+                        for msg in await self.refill():
+                            self.add(msg, live=False)
             self.wait_s += time.perf_counter() - t0
         return self._popped(self.book.pop_due(step))
 
@@ -545,6 +563,20 @@ async def resume_inputs(session: Any, ctx: RunContext, resume: Resume, inbox: St
     if got and first < ctx.start + ctx.steps and first not in inbox.buf:
         raise RuntimeError(f"cannot resume at step {first}: the {topic} replay log starts at "
                            f"step {min(inbox.buf)}")
+
+
+def oldest_consumer_snapshot(ctx: RunContext, consumers: tuple[str, ...]) -> int:
+    """The oldest latest-snapshot step among ``consumers`` (``ctx.start - 1`` if one has
+    none): a writer's snapshot keeps its logged messages after it, so that a consumer
+    restarted from that snapshot can fetch them even after the writer itself restarted."""
+    assert ctx.snapshot_dir is not None
+    steps = []
+    for actor in consumers:
+        latest = snap.latest_snapshot(ctx.snapshot_dir, actor)
+        if latest is None:
+            return ctx.start - 1
+        steps.append(latest[0])
+    return min(steps, default=ctx.start - 1)
 
 
 def snapshot_due(ctx: RunContext, step: int) -> bool:

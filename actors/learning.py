@@ -35,6 +35,7 @@ from .common import (
     RunEnded,
     StepInbox,
     apply_batch_context,
+    oldest_consumer_snapshot,
     percept_from_qstate,
     resume_inputs,
     snapshot_due,
@@ -45,6 +46,8 @@ from .common import (
 from .rules import batchctx_rule, qstate_rule
 
 ROLES = {"contingency": "dbn", "landmarks": "landmarks"}
+CONSUMERS = ("perception", "contingency", "landmarks", "executor")
+"""Every actor that applies deltas."""
 
 
 async def run(session, ctx: RunContext, role: str) -> dict:
@@ -120,9 +123,11 @@ async def run(session, ctx: RunContext, role: str) -> dict:
                     snapshot_pending = snapshot_pending or snapshot_due(ctx, t)
                     if snapshot_pending and not in_flight and t + 1 < ctx.start + ctx.steps:
                         snapshot_pending = False
+                        # Its deltas a consumer restarted from its oldest snapshot may need.
+                        since = min(t, oldest_consumer_snapshot(ctx, CONSUMERS))
                         snapshot_s.append(write_snapshot(
                             ctx, role, t, deltas, lambda d: save_learner(learner, d),
-                            own=[m.delta for m in out.pending(t)]))
+                            own=[m.delta for m in out.pending(since)]))
             slot.finished()
         finally:
             deltas.close()

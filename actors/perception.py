@@ -9,7 +9,7 @@ import numpy as np
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
 from qlap_runtime.bus.replay import ReplayLog
-from qlap_runtime.bus.schema import QState
+from qlap_runtime.bus.schema import QState, decode, encode
 from qlap_runtime.qlap.perception import InvalidObservation, Perception
 from qlap_runtime.qlap.quantity import Landmark
 from qlap_runtime.qlap.variables import VariableTable
@@ -23,6 +23,7 @@ from .common import (
     RunContext,
     RunEnded,
     StepInbox,
+    oldest_consumer_snapshot,
     qstate_of,
     resume_inputs,
     snapshot_due,
@@ -32,6 +33,7 @@ from .common import (
 )
 
 NAME = "perception"
+CONSUMERS = ("contingency", "landmarks", "executor")
 
 
 def apply_landmark_ops(per: Perception, deltas) -> None:
@@ -79,6 +81,9 @@ async def run(session, ctx: RunContext) -> dict:
             Controls(session, ctx, counter, keep=False) as end:   # the world's end marker
         slot = slot_of(ctx, NAME)
         deltas = DeltaInbox(session, ctx, counter, slot, n_vars=len(table))
+        qkey = keys.key(ctx.run_id, "qstate")
+        for step, payload in resume.state.get("qstate", []):
+            replay.append(int(step), decode(qkey, payload))
         try:
             # On the step chain: sense(t + 1) exists only once qstate(t) went out (window 1;
             # unknown variables are rejected by perceive, as in the synchronous loop).
@@ -113,9 +118,14 @@ async def run(session, ctx: RunContext) -> dict:
                 replay.append(t, out)
                 slot.done(t)
                 if snapshot_due(ctx, t):
+                    # The qstate log after the oldest consumer snapshot goes with it: a
+                    # consumer restarted from that snapshot after this actor restarted fetches
+                    # them from the new process (chaos trials, issue 13).
+                    since = oldest_consumer_snapshot(ctx, CONSUMERS) + 1
                     snapshot_s.append(write_snapshot(
                         ctx, NAME, t, deltas, lambda d: save_perception(per, d),
-                        last_observed=last_observed))
+                        last_observed=last_observed,
+                        qstate=[[s, encode(m).decode()] for s, m in replay.entries(since)]))
             slot.finished()
         finally:
             deltas.close()
