@@ -23,6 +23,7 @@ from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.variables import Event, VariableTable
 from qlap_runtime.runtime import snapshot as snap
 from qlap_runtime.runtime.lockstep import DeltaBook
+from qlap_runtime.runtime.watchdog import Slot
 
 log = logging.getLogger("qlap.actors")
 
@@ -39,6 +40,9 @@ class RunContext:
     out: Path | None = None
     checkpoint_every: int = 10_000
     extra: dict[str, Any] = field(default_factory=dict)
+    board: Any = field(default=None, repr=False, compare=False)
+    """The run's progress board (:mod:`~qlap_runtime.runtime.watchdog`), set by the launcher
+    in each process; not part of the JSON form."""
 
     @property
     def realtime(self) -> bool:
@@ -96,6 +100,11 @@ def world_variables(spec: str) -> tuple[Any, dict[str, Any]]:
         w.close()
 
 
+MAX_PENDING_BYTES = 64 * 2**20
+"""Per inbox: the payload bytes of messages received for later steps that may wait there. A
+run's own messages never come near it (a core2d ``qstate`` is ~0.5 kB and the window a few
+thousand steps); a sender flooding valid far-future messages is rejected beyond it."""
+
 REFILL_AFTER_S = 1.0
 """A restarted actor waiting this long for a step while later steps are buffered asks the
 writer's replay log again (a message put while its subscription was still propagating)."""
@@ -107,12 +116,32 @@ class StepInbox:
     Steps below the next one expected are dropped: a writer restarted from a snapshot publishes
     again the steps after its snapshot, which this consumer may already have consumed.
     ``refill(step)`` (a restarted actor's fetch from the writer's replay log) fills gaps.
+
+    Rules (docs/runtime.md, "Rules on messages"): a live message more than ``window`` steps
+    after the next step expected (or the last one fetched from a replay log) is outside the
+    lockstep window; ``rule(msg)`` returns why a message cannot be one of the run's; the payload
+    bytes waiting are bounded by ``MAX_PENDING_BYTES``. Such messages are counted and logged by
+    ``counter`` on ``key`` and dropped.
     """
 
     def __init__(self, sub: TrioSubscriber, first: int = 0,
                  refill: Callable[[int], Awaitable[list]] | None = None,
-                 end: Controls | None = None) -> None:
+                 end: Controls | None = None, slot: Slot | None = None,
+                 topic: str = "", *, counter: RejectionCounter | None = None, key: str = "",
+                 window: int | None = None,
+                 rule: Callable[[Any], str | None] | None = None) -> None:
         self.sub = sub
+        self.counter = counter if counter is not None else RejectionCounter()
+        self.key = key or topic
+        self.window = window
+        self.rule = rule
+        self.high = -1
+        """The last step fetched from a replay log (a restarted actor's window starts there)."""
+        self.sizes: dict[int, int] = {}
+        self.pending_bytes = 0
+        self.slot = slot if slot is not None else Slot()
+        """Where a wait is reported for the watchdog (:mod:`~qlap_runtime.runtime.watchdog`)."""
+        self.topic = topic
         self.buf: dict[int, Any] = {}
         self.next = first
         self.refill = refill
@@ -122,13 +151,51 @@ class StepInbox:
         self.duplicates = 0
         """Messages dropped because their step was already consumed."""
 
-    def add(self, msg: Any) -> None:
-        if msg.step < self.next:
+    def add(self, msg: Any, size: int = 0, live: bool = True) -> bool:
+        """Keep ``msg`` for its step (``size``: its payload bytes; ``live``: from the
+        subscription, not a replay log); False if it was dropped."""
+        step = msg.step
+        if self.rule is not None:                   # first: a forgery is always counted
+            why = self.rule(msg)
+            if why is not None:
+                return self._reject(why)
+        if step < self.next:
             self.duplicates += 1
-        else:
-            self.buf[msg.step] = msg
+            return False
+        if live:
+            if self.window is not None and step > max(self.next, self.high) + self.window:
+                return self._reject(f"step {step} outside the lockstep window (next "
+                                    f"{self.next}, window {self.window})")
+            if self.pending_bytes + size - self.sizes.get(step, 0) > MAX_PENDING_BYTES:
+                return self._reject(f"step {step}: more than {MAX_PENDING_BYTES} bytes of "
+                                    "messages for later steps pending")
+        self.pending_bytes += size - self.sizes.get(step, 0)
+        self.sizes[step] = size
+        self.buf[step] = msg
+        if not live:
+            self.high = max(self.high, step)
+        return True
 
-    async def get(self, step: int) -> Any:
+    def _reject(self, reason: str) -> bool:
+        self.counter.reject(self.key, reason)
+        return False
+
+    def drop(self, step: int) -> None:
+        """Forget the message of ``step`` (not to be consumed)."""
+        self.buf.pop(step, None)
+        self.pending_bytes -= self.sizes.pop(step, 0)
+
+    async def get(self, step: int, at: int | None = None) -> Any:
+        """Step ``step``'s message (waited for; the wait is on the board, before passing step
+        ``at``, by default ``step``)."""
+        if step not in self.buf:
+            with self.slot.waiting(self.topic, step, at):
+                await self._wait_for(step)
+        self.next = max(self.next, step + 1)
+        self.pending_bytes -= self.sizes.pop(step, 0)
+        return self.buf.pop(step)
+
+    async def _wait_for(self, step: int) -> None:
         while step not in self.buf:
             end = self.end
             if end is not None and end.ended(step):
@@ -140,14 +207,13 @@ class StepInbox:
                 else:
                     with trio.move_on_after(REFILL_AFTER_S):
                         batch = await self.sub.receive_batch()
-            if self.refill is not None and not batch and not (end and end.ended(step)) \
-                    and any(k > step for k in self.buf):
+            # A restarted actor idle for REFILL_AFTER_S asks the replay log again: a gap, or
+            # a writer that was itself restarting when this actor first asked (chaos trials).
+            if self.refill is not None and not batch and not (end and end.ended(step)):
                 for msg in await self.refill(step):
-                    self.add(msg)
+                    self.add(msg, live=False)
             for r in batch:
-                self.add(r.msg)
-        self.next = max(self.next, step + 1)
-        return self.buf.pop(step)
+                self.add(r.msg, len(r.payload))
 
     async def fill_from_replay(self, refill: Callable[[int], Awaitable[list]]) -> int:
         """Add the writer's logged messages from :attr:`next` on (a restarted consumer, after
@@ -155,7 +221,7 @@ class StepInbox:
         self.refill = refill
         msgs = await refill(self.next)
         for msg in msgs:
-            self.add(msg)
+            self.add(msg, live=False)
         return len(msgs)
 
 
@@ -344,34 +410,78 @@ class DeltaInbox:
     snapshot recomputes and publishes again the batches after its snapshot.
     """
 
-    def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> None:
+    def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter,
+                 slot: Slot | None = None, n_vars: int | None = None) -> None:
+        from .rules import delta_rule
+
         self.book = DeltaBook(ctx.params)
+        self.slot = slot if slot is not None else Slot()
+        self.counter = counter
+        self.keys = {k: keys.key(ctx.run_id, f"delta/{k}") for k in ("dbn", "landmarks")}
+        self.rule = None if n_vars is None else delta_rule(ctx.params, n_vars, ctx.realtime)
+        self.window = None if ctx.realtime else ctx.replay_keep
+        self.start = ctx.start
+        self.sizes: dict[tuple[int, str], int] = {}
+        self.pending_bytes = 0
         self.sub = TrioSubscriber(session, f"{keys.ROOT}/{ctx.run_id}/delta/*", counter=counter)
         self.wait_s = 0.0
         self.realtime = ctx.realtime
         self.stale = 0
+        self.refill: Callable[[], Awaitable[list]] | None = None
+        """Set for a restarted actor (:meth:`catch_up`): fetch the delta logs again."""
 
-    def add(self, msg: DeltaMsg) -> None:
+    def add(self, msg: DeltaMsg, size: int = 0, live: bool = True) -> None:
+        """Keep a delta until it is due (counted and dropped if it breaks a rule)."""
         if msg.kind not in ("dbn", "landmarks"):
             return
-        delta = msg.to_delta()
+        if self.rule is not None:                   # first: a forgery is always counted
+            why = self.rule(msg)
+            if why is not None:
+                self.counter.reject(self.keys[msg.kind], why)
+                return
+        at = msg.delta["computed_at"]
         lag = 0 if self.realtime else self.book.params.batch_lag
-        done = delta.computed_at + lag              # the step at whose boundary it applies
+        done = at + lag                             # the step at whose boundary it applies
         if done <= self.book.last:
             self.stale += 1
-        else:
-            self.book.add(msg.kind, delta)
+            return
+        key = (at, msg.kind)
+        if live and self.window is not None \
+                and at > max(self.book.last, self.start - 1) + self.window:
+            self.counter.reject(self.keys[msg.kind],
+                                f"delta/{msg.kind} computed at {at}: outside the "
+                                f"lockstep window (last applied step "
+                                f"{self.book.last}, window {self.window})")
+            return
+        if live and self.pending_bytes + size - self.sizes.get(key, 0) > MAX_PENDING_BYTES:
+            self.counter.reject(self.keys[msg.kind],
+                                f"delta/{msg.kind} computed at {at}: more than "
+                                f"{MAX_PENDING_BYTES} bytes of deltas pending")
+            return
+        self.pending_bytes += size - self.sizes.get(key, 0)
+        self.sizes[key] = size
+        self.book.add(msg.kind, msg.to_delta())
+
+    def _popped(self, deltas: list) -> list:
+        for d in deltas:
+            for kind in ("dbn", "landmarks"):
+                self.pending_bytes -= self.sizes.pop((d.computed_at, kind), 0)
+        return deltas
 
     def _take(self, batch) -> None:
         for r in batch:
-            self.add(r.msg)
+            self.add(r.msg, len(r.payload))
 
     async def catch_up(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> int:
         """A restarted actor: add every delta the learners' replay logs hold (after
         subscribing, so none published meanwhile is lost); return how many came back."""
-        msgs = await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
+        async def refill() -> list:
+            return await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
+
+        self.refill = refill
+        msgs = await refill()
         for msg in msgs:
-            self.add(msg)
+            self.add(msg, live=False)
         return len(msgs)
 
     async def due(self, step: int) -> list:
@@ -380,16 +490,29 @@ class DeltaInbox:
             self.book.waits += 1
             t0 = time.perf_counter()
             while not self.book.ready(step):
-                self._take(await self.sub.receive_batch())
+                computed, kind = self.book.missing(step)[0]
+                with self.slot.waiting(f"delta/{kind}", computed, step):
+                    if self.refill is None:
+                        self._take(await self.sub.receive_batch())
+                        continue
+                    # Restarted: idle for REFILL_AFTER_S, ask the learners' replay logs
+                    # again (a learner that was itself restarting when this actor asked).
+                    batch: list = []
+                    with trio.move_on_after(REFILL_AFTER_S):
+                        batch = await self.sub.receive_batch()
+                    self._take(batch)
+                    if not batch:
+                        for msg in await self.refill():
+                            self.add(msg, live=False)
             self.wait_s += time.perf_counter() - t0
-        return self.book.pop_due(step)
+        return self._popped(self.book.pop_due(step))
 
     async def due_now(self, step: int, realtime: bool) -> list:
         """Lockstep: :meth:`due` (waits). Realtime: what has arrived, applied on arrival."""
         if not realtime:
             return await self.due(step)
         self._take(self.sub.receive_nowait())
-        return self.book.arrived_prefix(step)
+        return self._popped(self.book.arrived_prefix(step))
 
     def close(self) -> None:
         self.sub.close()
@@ -440,6 +563,20 @@ async def resume_inputs(session: Any, ctx: RunContext, resume: Resume, inbox: St
     if got and first < ctx.start + ctx.steps and first not in inbox.buf:
         raise RuntimeError(f"cannot resume at step {first}: the {topic} replay log starts at "
                            f"step {min(inbox.buf)}")
+
+
+def oldest_consumer_snapshot(ctx: RunContext, consumers: tuple[str, ...]) -> int:
+    """The oldest latest-snapshot step among ``consumers`` (``ctx.start - 1`` if one has
+    none): a writer's snapshot keeps its logged messages after it, so that a consumer
+    restarted from that snapshot can fetch them even after the writer itself restarted."""
+    assert ctx.snapshot_dir is not None
+    steps = []
+    for actor in consumers:
+        latest = snap.latest_snapshot(ctx.snapshot_dir, actor)
+        if latest is None:
+            return ctx.start - 1
+        steps.append(latest[0])
+    return min(steps, default=ctx.start - 1)
 
 
 def snapshot_due(ctx: RunContext, step: int) -> bool:

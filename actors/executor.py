@@ -29,7 +29,7 @@ from qlap_runtime import telemetry
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
 from qlap_runtime.bus.replay import ReplayLog
-from qlap_runtime.bus.schema import Control, Motor
+from qlap_runtime.bus.schema import Control, Motor, decode, encode
 from qlap_runtime.metrics import METRICS_EVERY, METRICS_FILE, MetricsLog
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import (
@@ -40,6 +40,7 @@ from qlap_runtime.qlap.checkpoint import (
     save_step_checkpoint,
 )
 from qlap_runtime.runtime.lockstep import batch_kinds
+from qlap_runtime.runtime.watchdog import slot_of
 
 from .common import (
     ControlError,
@@ -58,6 +59,7 @@ from .common import (
     world_variables,
     write_snapshot,
 )
+from .rules import qstate_rule
 
 NAME = "executor"
 STATUS_EVERY_S = 0.1
@@ -94,10 +96,21 @@ async def run(session, ctx: RunContext) -> dict:
             ReplayLog(session, ctx.run_id, "batchctx", ctx.replay_keep) as ctx_replay, \
             Controls(session, ctx, counter) as controls, \
             Display(session, ctx) as display:
-        deltas = DeltaInbox(session, ctx, counter)
+        slot = slot_of(ctx, NAME)
+        deltas = DeltaInbox(session, ctx, counter, slot, n_vars=len(agent.table))
         commands = Commands(agent, ctx, controls, counter, display, deltas)
+        # batchctx(s) of a batch at s + 1 went out before the snapshot at s, so a restarted
+        # executor never publishes it again: its snapshot carries the logged ones, served
+        # again to a batch actor restarted later from an older snapshot (docs/runtime.md).
+        ctx_key = keys.key(ctx.run_id, "batchctx")
+        for step, payload in resume.state.get("batchctx", []):
+            ctx_replay.append(int(step), decode(ctx_key, payload))
         try:
-            inbox = StepInbox(sub, first=resume.step + 1, end=controls)
+            inbox = StepInbox(sub, first=resume.step + 1, end=controls, slot=slot,
+                              topic="qstate", counter=counter,
+                              key=keys.key(ctx.run_id, "qstate"),
+                              window=None if ctx.realtime else 1,
+                              rule=qstate_rule([v.name for v in agent.table]))
             await resume_inputs(session, ctx, resume, inbox, "qstate", deltas, counter)
             async with trio.open_nursery() as nursery:
                 nursery.start_soon(commands.between_steps)
@@ -130,6 +143,7 @@ async def run(session, ctx: RunContext) -> dict:
                         ctx_replay.append(t, bc)
                     pub.put(motor)
                     replay.append(t, motor)
+                    slot.done(t)
                     steps_done += 1
                     if metrics is not None:
                         metrics.after_step(t + 1, agent)
@@ -143,8 +157,12 @@ async def run(session, ctx: RunContext) -> dict:
                     if snapshot_due(ctx, t):
                         snapshot_s.append(write_snapshot(ctx, NAME, t, deltas,
                                                          lambda d: save_agent(agent, d),
-                                                         rejected=rejected))
+                                                         rejected=rejected,
+                                                         batchctx=[
+                                                             [s, encode(m).decode()] for s, m
+                                                             in ctx_replay.entries()]))
                 nursery.cancel_scope.cancel()
+            slot.finished()
             commands.apply()
             display.finished = True
             if not commands.rc.message.startswith("run ended"):
@@ -234,7 +252,7 @@ class Commands:
             path = a.get("path")
             if path is not None and (type(path) is not str or not path):
                 raise ControlError(f"path must be a non-empty string, got {path!r}")
-            target = Path(path) if path else \
+            target = self._confined(path) if path else \
                 self._checkpoints() / f"step-{max(self.agent.step_count + 1, 0):07d}"
             try:
                 save_agent(self.agent, target, self.ctx.world)
@@ -242,6 +260,16 @@ class Commands:
             except Exception as e:                  # a bad path must not stop the run
                 log.warning("save to %s failed: %s", target, e)
                 self.rc.message = f"save failed: {type(e).__name__}: {e}"
+
+    def _confined(self, path: str) -> Path:
+        """``save``'s path inside the run directory (a relative path is taken from there):
+        whoever may put on ``control`` must not write anywhere else (issue 13)."""
+        root = (Path(self.ctx.out) if self.ctx.out is not None
+                else self._checkpoints()).resolve()
+        target = (root / path).resolve()
+        if target == root or not target.is_relative_to(root):
+            raise ControlError(f"path {path!r} is outside the run directory {root}")
+        return target
 
     def _checkpoints(self) -> Path:
         """``<out>/checkpoints``, or a temporary directory when the run writes no outputs."""

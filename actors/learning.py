@@ -25,6 +25,7 @@ from qlap_runtime.bus.schema import BatchContext, DeltaMsg
 from qlap_runtime.qlap.checkpoint import load_learner, save_learner
 from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.runtime.lockstep import batch_kinds
+from qlap_runtime.runtime.watchdog import Slot, slot_of
 
 from .common import (
     Controls,
@@ -34,6 +35,7 @@ from .common import (
     RunEnded,
     StepInbox,
     apply_batch_context,
+    oldest_consumer_snapshot,
     percept_from_qstate,
     resume_inputs,
     snapshot_due,
@@ -41,8 +43,11 @@ from .common import (
     world_variables,
     write_snapshot,
 )
+from .rules import batchctx_rule, qstate_rule
 
 ROLES = {"contingency": "dbn", "landmarks": "landmarks"}
+CONSUMERS = ("perception", "contingency", "landmarks", "executor")
+"""Every actor that applies deltas."""
 
 
 async def run(session, ctx: RunContext, role: str) -> dict:
@@ -65,21 +70,29 @@ async def run(session, ctx: RunContext, role: str) -> dict:
             ReplayLog(session, ctx.run_id, f"delta/{kind}", ctx.replay_keep) as replay, \
             Controls(session, ctx, counter, keep=False) as end, \
             TrioSubscriber(session, keys.key(ctx.run_id, "batchctx"), counter=counter) as bsub:
-        deltas = DeltaInbox(session, ctx, counter)
-        out = Outbox(pub, replay, kind, ctx.params.batch_lag, in_flight)
+        slot = slot_of(ctx, role)
+        deltas = DeltaInbox(session, ctx, counter, slot, n_vars=len(learner.table))
+        names = [v.name for v in learner.table]
+        out = Outbox(pub, replay, kind, ctx.params.batch_lag, in_flight, slot)
         try:
-            inbox = StepInbox(sub, first=resume.step + 1, end=end)
+            window = None if ctx.realtime else ctx.replay_keep
+            inbox = StepInbox(sub, first=resume.step + 1, end=end, slot=slot, topic="qstate",
+                              counter=counter, key=keys.key(ctx.run_id, "qstate"),
+                              window=window, rule=qstate_rule(names))
             for d in resume.state.get("own", []):      # published before the snapshot
                 out.log(DeltaMsg(kind, d))
             await resume_inputs(session, ctx, resume, inbox, "qstate", deltas, counter)
             # The executor's state before each batch (§6.2.1); the one before the first batch
             # after a snapshot may be of the snapshot's own step.
-            contexts = StepInbox(bsub, first=resume.step, end=end)
+            contexts = StepInbox(bsub, first=resume.step, end=end, slot=slot,
+                                 topic="batchctx", counter=counter,
+                                 key=keys.key(ctx.run_id, "batchctx"), window=window,
+                                 rule=batchctx_rule(len(learner.table)))
             if resume.restarted:
                 await contexts.fill_from_replay(lambda step: fetch_replay(
                     session, ctx.run_id, "batchctx", step, counter=counter))
             for entry in replay.entries():
-                deltas.add(entry[1])            # its own deltas not yet applied here
+                deltas.add(entry[1], live=False)    # its own deltas not yet applied here
             snapshot_pending = False
             async with trio.open_nursery() as nursery:
                 for t in range(resume.step + 1, ctx.start + ctx.steps):
@@ -96,21 +109,26 @@ async def run(session, ctx: RunContext, role: str) -> dict:
                             if bc is not None:
                                 apply_batch_context(learner, bc)
                             work = learner.batch_copy()
+                            in_flight.add(t)
+                            slot.busy(len(in_flight))
                             if ctx.params.batch_lag == 0 and not ctx.realtime:
                                 out.publish(_compute(work, t, kind, batch_s))
                             else:
-                                in_flight.add(t)
                                 nursery.start_soon(_background, work, t, kind, out, batch_s)
                         for d in await deltas.due_now(t, ctx.realtime):
                             learner.apply_delta(d)
+                    slot.done(t)
                     # A snapshot at t must not miss a batch computed at or before t: with one
                     # in flight it waits for the first step after its delta was published.
                     snapshot_pending = snapshot_pending or snapshot_due(ctx, t)
                     if snapshot_pending and not in_flight and t + 1 < ctx.start + ctx.steps:
                         snapshot_pending = False
+                        # Its deltas a consumer restarted from its oldest snapshot may need.
+                        since = min(t, oldest_consumer_snapshot(ctx, CONSUMERS))
                         snapshot_s.append(write_snapshot(
                             ctx, role, t, deltas, lambda d: save_learner(learner, d),
-                            own=[m.delta for m in out.pending(t)]))
+                            own=[m.delta for m in out.pending(since)]))
+            slot.finished()
         finally:
             deltas.close()
     return {"rejected": counter.snapshot().total, "waits": deltas.book.waits,
@@ -127,13 +145,13 @@ async def _context_before(contexts: StepInbox, t: int, start: int,
         if t - 1 < start:
             return None                       # before the run's first step: none published
         for old in [k for k in contexts.buf if k < t - 1]:
-            del contexts.buf[old]              # batches of the other actor's kind only
+            contexts.drop(old)                 # batches of the other actor's kind only
         try:
-            return await contexts.get(t - 1)
+            return await contexts.get(t - 1, at=t)
         except RunEnded:
             return None
     for r in contexts.sub.receive_nowait():
-        contexts.add(r.msg)
+        contexts.add(r.msg, len(r.payload))
     if not contexts.buf:
         return None
     latest = max(contexts.buf)
@@ -148,9 +166,10 @@ class Outbox:
     has applied them (a restarted consumer fetches those it missed)."""
 
     def __init__(self, pub: Publisher, replay: ReplayLog, kind: str, lag: int,
-                 in_flight: set[int]) -> None:
+                 in_flight: set[int], slot: Slot | None = None) -> None:
         self.pub, self.replay, self.kind, self.lag = pub, replay, kind, lag
         self.in_flight = in_flight
+        self.slot = slot if slot is not None else Slot()
 
     def log(self, msg: DeltaMsg) -> None:
         self.replay.append(msg.to_delta().computed_at + self.lag, msg)
@@ -160,6 +179,7 @@ class Outbox:
         self.log(msg)
         self.pub.put(msg)
         self.in_flight.discard(delta.computed_at)
+        self.slot.busy(len(self.in_flight))
 
     def pending(self, step: int) -> list[DeltaMsg]:
         """Own deltas published but applied after ``step`` (a snapshot at ``step`` keeps

@@ -9,11 +9,12 @@ import numpy as np
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
 from qlap_runtime.bus.replay import ReplayLog
-from qlap_runtime.bus.schema import QState
+from qlap_runtime.bus.schema import QState, decode, encode
 from qlap_runtime.qlap.perception import InvalidObservation, Perception
 from qlap_runtime.qlap.quantity import Landmark
 from qlap_runtime.qlap.variables import VariableTable
 from qlap_runtime.runtime.snapshot import load_perception, save_perception
+from qlap_runtime.runtime.watchdog import slot_of
 
 from .common import (
     Controls,
@@ -22,6 +23,7 @@ from .common import (
     RunContext,
     RunEnded,
     StepInbox,
+    oldest_consumer_snapshot,
     qstate_of,
     resume_inputs,
     snapshot_due,
@@ -31,6 +33,7 @@ from .common import (
 )
 
 NAME = "perception"
+CONSUMERS = ("contingency", "landmarks", "executor")
 
 
 def apply_landmark_ops(per: Perception, deltas) -> None:
@@ -76,9 +79,17 @@ async def run(session, ctx: RunContext) -> dict:
             Publisher(session, ctx.run_id, "qstate") as pub, \
             ReplayLog(session, ctx.run_id, "qstate", ctx.replay_keep) as replay, \
             Controls(session, ctx, counter, keep=False) as end:   # the world's end marker
-        deltas = DeltaInbox(session, ctx, counter)
+        slot = slot_of(ctx, NAME)
+        deltas = DeltaInbox(session, ctx, counter, slot, n_vars=len(table))
+        qkey = keys.key(ctx.run_id, "qstate")
+        for step, payload in resume.state.get("qstate", []):
+            replay.append(int(step), decode(qkey, payload))
         try:
-            inbox = StepInbox(sub, first=resume.step + 1, end=end)
+            # On the step chain: sense(t + 1) exists only once qstate(t) went out (window 1;
+            # unknown variables are rejected by perceive, as in the synchronous loop).
+            inbox = StepInbox(sub, first=resume.step + 1, end=end, slot=slot, topic="sense",
+                              counter=counter, key=keys.key(ctx.run_id, "sense"),
+                              window=None if ctx.realtime else 1)
             await resume_inputs(session, ctx, resume, inbox, "sense", deltas, counter)
             start = ctx.start
             last_observed = int(resume.state.get("last_observed", start - 1))
@@ -105,10 +116,17 @@ async def run(session, ctx: RunContext) -> dict:
                     out = qstate_of(p, table)
                 pub.put(out)
                 replay.append(t, out)
+                slot.done(t)
                 if snapshot_due(ctx, t):
+                    # The qstate log after the oldest consumer snapshot goes with it: a
+                    # consumer restarted from that snapshot after this actor restarted fetches
+                    # them from the new process (chaos trials, issue 13).
+                    since = oldest_consumer_snapshot(ctx, CONSUMERS) + 1
                     snapshot_s.append(write_snapshot(
                         ctx, NAME, t, deltas, lambda d: save_perception(per, d),
-                        last_observed=last_observed))
+                        last_observed=last_observed,
+                        qstate=[[s, encode(m).decode()] for s, m in replay.entries(since)]))
+            slot.finished()
         finally:
             deltas.close()
     return {"rejected": counter.snapshot().total, "rejected_observations": rejected_obs,

@@ -39,8 +39,10 @@ from qlap_runtime.bus.bridge import (
 from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import Control, Sense, WorldView
 from qlap_runtime.qlap.perception import MAX_ABS_VALUE
+from qlap_runtime.runtime.watchdog import slot_of
 
 from .common import ControlError, Controls, RunContext, RunControl, StepInbox
+from .rules import motor_rule
 
 NAME = "world"
 OTHERS_END_S = 120.0
@@ -77,6 +79,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
 
     world = worlds.make(ctx.world)
     counter = RejectionCounter(NAME)
+    slot = slot_of(ctx, NAME)
     stats = {"steps": 0, "wait_s": 0.0}
     try:
         motors = [v.name for v in world.variables if getattr(v.kind, "value", v.kind) == "motor"]
@@ -93,7 +96,12 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 Controls(session, ctx, counter) as controls, \
                 Publisher(session, ctx.run_id, "control") as end_marker:
             start = ctx.start
-            inbox = StepInbox(sub, first=start)
+            # A motor for a step the world has not sensed yet cannot be the executor's: the
+            # lockstep window is 0 (docs/runtime.md, "Rules on messages").
+            inbox = StepInbox(sub, first=start, slot=slot, topic="motor", counter=counter,
+                              key=keys.key(ctx.run_id, "motor"),
+                              window=None if ctx.realtime else 0,
+                              rule=motor_rule(world.variables))
             last_view = 0.0
             if ready is not None:
                 await ready.wait()
@@ -121,7 +129,11 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                         return False
                     if not rc.may_step:
                         t0 = time.perf_counter()
-                        await controls.wait()
+                        slot.paused(True)           # no progress expected: not a stall
+                        try:
+                            await controls.wait()
+                        finally:
+                            slot.paused(False)
                         paused_s += time.perf_counter() - t0
                         rebase = True
                         continue
@@ -133,8 +145,12 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                     if not ctx.realtime and rc.speed > 0 and not rc.paused:
                         deadline = pace0[0] + (t - pace0[1]) / rc.speed
                         if trio.current_time() < deadline:
-                            with trio.move_on_at(deadline) as pacing:
-                                await controls.wait()
+                            slot.paused(True)       # paced: a slow step is not a stall
+                            try:
+                                with trio.move_on_at(deadline) as pacing:
+                                    await controls.wait()
+                            finally:
+                                slot.paused(False)
                             if not pacing.cancelled_caught:
                                 continue    # a control came first
                     return True
@@ -175,7 +191,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                     if motor is None:
                         stats["late_ticks"] = stats.get("late_ticks", 0) + 1
                     for old in [k for k in inbox.buf if k <= t]:
-                        del inbox.buf[old]          # motors that came after their deadline
+                        inbox.drop(old)             # motors that came after their deadline
                 else:
                     motor = await inbox.get(t)
                 stats["wait_s"] += time.perf_counter() - t0
@@ -201,7 +217,9 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                                         if math.isfinite(v)}, applied, {}))
                 stats["steps"] += 1
                 rc.stepped()
+                slot.done(t)
                 last = t
+            slot.finished()
             if rc.quit:
                 # The end marker: every other actor ends after step `last` (the last one whose
                 # sense was published and whose motor was applied) and writes its outputs.

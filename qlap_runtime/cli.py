@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from .argtypes import count, positive_int
-from .errors import CliError
+from .errors import CliError, expected_error, one_line
 
 DEFAULT_ACTOR_LAG = 500
 """Default batch lag L of the actor placements (docs/architecture.md §2: batches pipelined, the
@@ -90,7 +90,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                      help="also listen on ENDPOINT (e.g. tcp/127.0.0.1:7447) so outside "
                           "subscribers (qlap tui/record/echo --connect) can attach "
-                          "(embedded placement and the terminal UI)")
+                          "(embedded placement and the terminal UI); they authenticate with "
+                          "<out>/bus-credentials.json, written for the run")
     run.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
                      help="record every bus message of the run to an MCAP file "
                           "(embedded and processes placements)")
@@ -235,6 +236,9 @@ def build_parser() -> argparse.ArgumentParser:
     tui_p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT",
                        help="endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
     tui_p.add_argument("--run", default=None, help="run id (default: the first one heard)")
+    tui_p.add_argument("--credentials", type=Path, default=None, metavar="FILE",
+                       help="the run's bus-credentials.json (user tui; default: "
+                            "$QLAP_CREDENTIALS)")
 
     worlds_p = sub.add_parser(
         "worlds", help="list the registered worlds with their descriptions and tasks",
@@ -295,34 +299,6 @@ def main(argv: list[str] | None = None) -> int:
     return 2
 
 
-def expected_error(exc: BaseException) -> BaseException | None:
-    """The error to report in one line if ``exc`` is an expected one (a bad input, a file that
-    cannot be written, an endpoint that cannot be reached, a world that cannot be made), looking
-    inside exception groups (trio nurseries); None for a bug, whose traceback is wanted."""
-    if isinstance(exc, BaseExceptionGroup):
-        leaves = [expected_error(e) for e in exc.exceptions]
-        if leaves and all(leaf is not None for leaf in leaves):
-            return leaves[0]
-        return None
-    expected: list[type] = [CliError, OSError]
-    for module, name in (("zenoh", "ZError"), ("gymnasium.error", "Error"),
-                         ("worlds.registry", "WorldSpecError"),
-                         ("qlap_runtime.bus.config", "BusConfigError")):
-        if module in sys.modules and isinstance(getattr(sys.modules[module], name, None), type):
-            expected.append(getattr(sys.modules[module], name))
-    return exc if isinstance(exc, tuple(expected)) else None
-
-
-def one_line(exc: BaseException) -> str:
-    """``exc`` as one line: an OSError as 'FILE: reason', Zenoh's source location dropped."""
-    import re
-
-    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
-        return f"{exc.filename}: {exc.strerror}"
-    text = re.sub(r"\s+at \S+\.rs:\d+\.?\s*$", "", str(exc).strip())
-    return " ".join(text.split()) or type(exc).__name__
-
-
 def _check_args(args: argparse.Namespace) -> None:
     """Inputs wrong before anything starts: a negative --babble-steps, an output file whose
     directory does not exist (--record, snapshot/record --out)."""
@@ -348,15 +324,19 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 
     from tui import QlapApp
 
+    from .bus.auth import UI_USER
+    from .bus.cli import credentials_for
     from .bus.config import client_config
 
+    user, password = credentials_for(args.credentials, UI_USER)
+    auth = {"user": user, "password": password} if user else {}
     try:
-        zenoh.open(client_config(args.connect)).close()
+        zenoh.open(client_config(args.connect, **auth)).close()
     except zenoh.ZError as exc:
         raise CliError(f"cannot connect to {', '.join(args.connect)}: {one_line(exc)}",
                        code=1) from None
     try:
-        app = QlapApp(connect=args.connect, run_id=args.run)
+        app = QlapApp(connect=args.connect, run_id=args.run, **auth)
     except ValueError as exc:
         raise CliError(f"--run {args.run}: {exc}") from None
     app.run()
@@ -421,30 +401,40 @@ def default_run_dir(world: str, seed: int, root: Path = Path("runs")) -> Path:
     return path
 
 
+def source_run(checkpoint: Path) -> Path | None:
+    """The run directory a checkpoint belongs to (``<run>/checkpoints/<name>``, links
+    followed), or None for a checkpoint outside a run."""
+    for path in (Path(checkpoint).absolute(), Path(checkpoint).resolve()):
+        if path.parent.name == "checkpoints":
+            return path.parent.parent.resolve()
+    return None
+
+
+def resume_clash(checkpoint: Path, out: Path | None) -> str | None:
+    """Why ``--resume checkpoint --out out`` would write over the run the checkpoint comes
+    from (its knowledge.json, summary.json, final/ and later checkpoints), or None. Without
+    ``--out`` the run goes to a new default directory."""
+    run = source_run(checkpoint)
+    if run is None or out is None:
+        return None
+    target = Path(out).resolve()
+    if target == run or target.is_relative_to(run) or run.is_relative_to(target):
+        return (f"--out {out} would write over the run the checkpoint comes from ({run}): "
+                "give a new --out")
+    return None
+
+
 def _prepare_out(args: argparse.Namespace) -> Path | None:
     """The run directory (``--out`` or the default), created and checked writable with a
-    probe file before the run starts; None after a one-line error."""
-    import os
+    probe file and for room for a checkpoint before the run starts
+    (:func:`~qlap_runtime.runtime.outputs.check_out`); None after a one-line error."""
+    from .runtime.outputs import OutputError, check_out
 
     out = args.out if args.out is not None else default_run_dir(args.world, args.seed)
-    if out.exists() and not out.is_dir():
-        print(f"qlap run: --out {out}: exists and is not a directory", file=sys.stderr)
-        return None
-    probe = out / f".qlap-probe-{os.getpid()}"
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        with open(probe, "wb") as f:
-            f.write(b"\0" * 65536)
-            f.flush()
-            os.fsync(f.fileno())
-        probe.unlink()
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        print(f"qlap run: --out {out}: cannot write there ({reason})", file=sys.stderr)
-        try:
-            probe.unlink(missing_ok=True)
-        except OSError:
-            pass
+        check_out(out)
+    except OutputError as exc:
+        print(f"qlap run: {exc}", file=sys.stderr)
         return None
     args.run_dir = out
     print(f"run directory: {out}", flush=True)
@@ -501,6 +491,11 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
         return 2
     agent = None
     if args.resume is not None:
+        clash = resume_clash(args.resume, args.out)
+        if clash is not None:
+            print(f"qlap run: --resume: {clash}", file=sys.stderr)
+            world.close()
+            return 2
         try:
             agent = load_agent(args.resume)
         except CheckpointError as exc:
@@ -623,6 +618,12 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
                      extra=extra)
     print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
           f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
+    from .bus.auth import CREDENTIALS_FILE
+
+    credentials = out / CREDENTIALS_FILE
+    if args.listen:
+        print(f"listening on {', '.join(args.listen)} with authentication: qlap tui --connect "
+              f"{args.listen[0]} --credentials {credentials}", file=sys.stderr)
     # Progress: the rich bar fed from the bus in a terminal (embedded); otherwise plain lines
     # from the metrics log the executor writes (the same counts as the summary).
     plain = None
@@ -641,8 +642,9 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
             from .placements.launcher import free_port
 
             port = free_port()
-            print(f"router on tcp/127.0.0.1:{port} (qlap tui/record/echo --connect "
-                  f"tcp/127.0.0.1:{port})", file=sys.stderr)
+            print(f"router on tcp/127.0.0.1:{port} with authentication (qlap tui/record/echo "
+                  f"--connect tcp/127.0.0.1:{port} --credentials {credentials})",
+                  file=sys.stderr)
             summary = run_processes(ctx, port, record=args.record)
     finally:
         if plain is not None:

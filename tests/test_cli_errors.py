@@ -212,3 +212,26 @@ def test_worlds_lists_each_spec_with_description_and_tasks(capsys):
     rows = {r["spec"]: r for r in json.loads(out)}
     assert set(rows) == set(specs)
     assert rows["core:secondary:aligned"]["tasks"] == ["hit_secondary", "pickup"]
+
+
+# ------------------------------------------------------------------------ --resume (issue 13)
+def test_resume_never_writes_over_the_source_run(capsys, tmp_path):
+    run = tmp_path / "run"
+    code, _, _ = qlap(capsys, "run", "--headless", "--quiet", "--placement", "sync",
+                      "--world", "core2d", "--steps", "300", "--out", str(run))
+    assert code == 0
+    before = {p: p.read_bytes() for p in (run / "knowledge.json", run / "summary.json")}
+    final = run / "checkpoints" / "final"
+    for out in (run, run / "more", tmp_path):
+        code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "sync",
+                            "--world", "core2d", "--steps", "100", "--resume", str(final),
+                            "--out", str(out))
+        line = assert_one_line(code, err, "--resume", "would write over the run")
+        assert str(run.resolve()) in line
+    assert {p: p.read_bytes() for p in before} == before
+    assert not (run / "more").exists()
+    code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "sync",
+                        "--world", "core2d", "--steps", "100", "--resume", str(final),
+                        "--out", str(tmp_path / "resumed"))
+    assert code == 0, err
+    assert json.loads((tmp_path / "resumed" / "summary.json").read_text())["steps"] == 100

@@ -38,7 +38,7 @@ def run_process(proc: DriverProcess) -> DriverProcess:
     if proc.exitcode is None and not proc.alive:
         proc.start()
     try:
-        QlapApp(connect=proc.endpoint, run_id=proc.run_id).run()
+        QlapApp(connect=proc.endpoint, run_id=proc.run_id, **proc.client).run()
     finally:
         proc.stop()
     return proc

@@ -75,7 +75,8 @@ class LocalDriver:
                  checkpoint_dir: Path | str | None = None, reset: bool = True,
                  cadence: telemetry.Cadence | None = None, on_finish: Any = None,
                  out: Path | str | None = None, checkpoint_every: int = 10_000,
-                 keep_checkpoints: int | None = None, world_spec: str | None = None) -> None:
+                 keep_checkpoints: int | None = None, world_spec: str | None = None,
+                 users: Mapping[str, str] | None = None) -> None:
         from qlap_runtime.agent_run import params_for_world
         from qlap_runtime.qlap.agent import Agent
 
@@ -103,6 +104,9 @@ class LocalDriver:
         self.cadence = cadence or telemetry.Cadence()
         self.on_finish = on_finish
         self._listen = list(listen)
+        self._users = dict(users) if users else None
+        """With ``listen``: the users that may connect (usrpwd) under the run's ACL
+        (``qlap_runtime.bus.auth``: ``tui`` may put on ``control``, ``viewer`` nothing)."""
         self._own_session = session is None
         self._session = session
         self._reset = reset
@@ -132,7 +136,12 @@ class LocalDriver:
     def open(self) -> zenoh.Session:
         """Open the embedded session (if none was given) without starting the agent."""
         if self._session is None:
-            self._session = zenoh.open(embedded_config(self._listen))
+            auth: dict[str, Any] = {}
+            if self._users and self._listen:
+                from qlap_runtime.bus.auth import run_acl
+
+                auth = {"users": self._users, "acl": run_acl(self._users)}
+            self._session = zenoh.open(embedded_config(self._listen, **auth))
         return self._session
 
     def start(self) -> LocalDriver:
@@ -465,11 +474,21 @@ class DriverProcess:
                  out: Path | str | None = None, **driver: Any) -> None:
         import multiprocessing as mp
 
+        from qlap_runtime.bus.auth import CREDENTIALS_FILE, UI_USER, run_users, write_credentials
+
         self.run_id = keys.validate_run_id(run_id) if run_id else keys.new_run_id()
         self.endpoint = _free_loopback_endpoint()
+        # Authorisation by default (docs/security.md): fresh credentials for this run; the UI
+        # connects as `tui`; <out>/bus-credentials.json lets other viewers attach.
+        self.users = run_users()
+        self.client = {"user": UI_USER, "password": self.users[UI_USER]}
+        """``client_config`` options of the UI's session (``QlapApp(**client)``)."""
+        self.credentials = write_credentials(Path(out) / CREDENTIALS_FILE,
+                                             [self.endpoint, *listen], self.users) \
+            if out else None
         spec = dict(driver, world=world, run_id=self.run_id,
                     listen=[self.endpoint, *listen], params=params or {},
-                    out=str(out) if out else None)
+                    out=str(out) if out else None, users=self.users)
         if "checkpoint_dir" in spec:
             spec["checkpoint_dir"] = str(spec["checkpoint_dir"])
         ctx = mp.get_context("spawn")
@@ -502,7 +521,7 @@ class DriverProcess:
             return
         if self._process.is_alive():
             try:
-                with zenoh.open(_client(self.endpoint)) as s:
+                with zenoh.open(_client(self.endpoint, **self.client)) as s:
                     s.put(keys.key(self.run_id, "control"),
                           b'{"command":"quit","args":{},"version":1}')
             except zenoh.ZError:
@@ -513,7 +532,7 @@ class DriverProcess:
             self._process.join(5)
 
 
-def _client(endpoint: str) -> zenoh.Config:
+def _client(endpoint: str, **auth: Any) -> zenoh.Config:
     from qlap_runtime.bus.config import client_config
 
-    return client_config([endpoint])
+    return client_config([endpoint], **auth)

@@ -22,6 +22,7 @@ from pathlib import Path
 import trio
 import zenoh
 
+from .auth import VIEWER
 from .config import BusConfigError, TlsFiles, client_config, config_from_file, router_config
 
 BUS_COMMANDS = ("router", "record", "echo")
@@ -34,6 +35,9 @@ def _connection_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--user", default=None, help="user name (usrpwd authentication)")
     p.add_argument("--password", default=os.environ.get("QLAP_PASSWORD"),
                    help="password (default: $QLAP_PASSWORD)")
+    p.add_argument("--credentials", type=Path, default=None, metavar="FILE",
+                   help="a run's bus-credentials.json (its viewer user; default: "
+                        "$QLAP_CREDENTIALS), instead of --user/--password")
     p.add_argument("--tls-ca", type=Path, default=None, help="CA certificate for tls/ endpoints")
     p.add_argument("--tls-cert", type=Path, default=None, help="client certificate (mutual TLS)")
     p.add_argument("--tls-key", type=Path, default=None, help="client key (mutual TLS)")
@@ -126,8 +130,21 @@ def _client(args: argparse.Namespace) -> zenoh.Config:
     if args.tls_ca is not None or args.tls_cert is not None:
         tls = TlsFiles(ca=args.tls_ca, certificate=args.tls_cert, private_key=args.tls_key,
                        mtls=args.tls_cert is not None)
-    return client_config(args.connect, tls=tls, user=args.user,
-                         password=args.password if args.user else None)
+    user, password = args.user, args.password if args.user else None
+    if user is None:
+        user, password = credentials_for(getattr(args, "credentials", None), VIEWER)
+    return client_config(args.connect, tls=tls, user=user, password=password)
+
+
+def credentials_for(path: Path | None, user: str) -> tuple[str | None, str | None]:
+    """(user, password) from ``--credentials`` or ``$QLAP_CREDENTIALS`` (none: (None, None))."""
+    from .auth import credentials_from_env, read_credentials
+
+    found = credentials_from_env(path)
+    if found is None:
+        return None, None
+    name, password, _ = read_credentials(found, user)
+    return name, password
 
 
 async def _until_signal(stop: trio.Event, *, task_status: trio.TaskStatus[None]) -> None:

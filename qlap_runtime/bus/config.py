@@ -121,14 +121,23 @@ def _needs_tls(eps: list[str], tls: TlsFiles | None, option: str) -> None:
         raise BusConfigError(f"{option}: a tls/ or quic/ endpoint needs tls=TlsFiles(...)")
 
 
-def embedded_config(listen: Sequence[str] = ()) -> zenoh.Config:
+def embedded_config(listen: Sequence[str] = (), *,
+                    users: Mapping[str, str] | Path | str | None = None,
+                    acl: Mapping[str, Any] | None = None) -> zenoh.Config:
     """A peer session with no sockets: no listen or connect endpoints, no scouting.
 
     With ``listen`` (e.g. ``["tcp/127.0.0.1:7447"]``) the session also accepts outside
     subscribers (a TUI, a recorder) while staying a single in-process session for the actors.
+    ``users`` and ``acl`` as for :func:`router_config`: outside sessions must authenticate and
+    may put only what the ACL allows (the in-process actors are not subject to it);
+    ``qlap_runtime.bus.auth`` builds both for a run.
     """
     cfg = _base("peer")
     _set(cfg, "listen/endpoints", _endpoints(listen, "listen", allow_empty=True))
+    if users is not None:
+        _set(cfg, "transport/auth/usrpwd/dictionary_file", _dictionary_file(users))
+    if acl is not None:
+        _set(cfg, "access_control", _validate_acl(acl))
     return cfg
 
 

@@ -11,6 +11,7 @@ the same seed and parameters.
 from __future__ import annotations
 
 import json
+import os
 import socket
 import threading
 import time
@@ -25,6 +26,7 @@ import zenoh
 from ..bus.bridge import AliveWatcher
 from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
+from ..runtime.outputs import check_out
 from ..runtime.supervisor import Supervisor
 
 ACTORS = ("perception", "contingency", "landmarks", "executor", "world")
@@ -59,11 +61,17 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     ``watchers`` coroutines ``task(session, ctx, stop)`` (e.g. the progress bar) run until
     the actors are done and ``stop`` is set."""
     from ..bus.recorder import record as record_bus
+    from ..runtime.watchdog import DEFAULT_STALL_S, Board, Watchdog
 
     results: dict[str, Any] = {}
     ctx.extra.setdefault("placement", "embedded")
+    if ctx.out is not None:
+        check_out(Path(ctx.out))
+    auth = _listen_auth(ctx, listen)
+    ctx.board = Board(ACTORS)
+    watchdog = Watchdog(ctx.board, float(ctx.extra.get("stall_s", 0) or 0) or DEFAULT_STALL_S)
     t0 = time.perf_counter()
-    with zenoh.open(embedded_config(listen)) as session:
+    with zenoh.open(embedded_config(listen, **auth)) as session:
         ready = trio.Event()
         stop = trio.Event()
 
@@ -76,6 +84,7 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
                                   ctx.run_id, record, stop)
             for watcher in watchers:
                 outer.start_soon(watcher, session, ctx, stop)
+            outer.start_soon(_watch_stalls, watchdog, stop)
             async with trio.open_nursery() as nursery:
                 for name in ACTORS:
                     nursery.start_soon(one, name)
@@ -85,6 +94,34 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
                     nursery.start_soon(task, session, ctx)
             stop.set()
     return _finish(ctx, "embedded", results, time.perf_counter() - t0)
+
+
+def _listen_auth(ctx: Any, listen: tuple[str, ...]) -> dict[str, Any]:
+    """Authorisation by default for an embedded run that listens (docs/security.md): fresh
+    ``tui`` and ``viewer`` credentials and the run's ACL; the credentials go to
+    ``<out>/bus-credentials.json`` (mode 0600), or ``extra["credentials"]``."""
+    if not listen:
+        return {}
+    from ..bus.auth import CREDENTIALS_FILE, run_acl, run_users, write_credentials
+
+    users = run_users()
+    where = ctx.extra.get("credentials") or (
+        Path(ctx.out) / CREDENTIALS_FILE if ctx.out is not None else None)
+    if where is None:
+        import tempfile
+
+        where = Path(tempfile.mkdtemp(prefix=f"qlap-{ctx.run_id}-")) / CREDENTIALS_FILE
+    ctx.extra["credentials"] = str(write_credentials(Path(where), listen, users))
+    return {"users": users, "acl": run_acl(users)}
+
+
+async def _watch_stalls(watchdog: Any, stop: trio.Event) -> None:
+    """The embedded placement's watchdog: raises RunStalled (ending the run) on no progress."""
+    while not stop.is_set():
+        with trio.move_on_after(1.0):
+            await stop.wait()
+        if not stop.is_set():
+            watchdog.check()
 
 
 async def _connected_actor(name: str, config: zenoh.Config, ctx: Any, watcher: Any,
@@ -124,7 +161,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) -> None:
+def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
+                   slot: Any = None, password: str | None = None) -> None:
     """Entry point of an actor's process (spawned: no state inherited).
 
     Ctrl-C is the launcher's business (it stops every actor): SIGINT is ignored here; SIGTERM,
@@ -137,6 +175,10 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) ->
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     ctx = RunContext.from_json(json.loads(ctx_json))
+    if slot is not None:                            # the supervisor's progress board
+        from ..runtime.watchdog import Board
+
+        ctx.board = Board((name,), {name: slot})
     parent = os.getppid()
 
     async def watch(cancel: trio.CancelScope) -> None:
@@ -148,10 +190,35 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str) ->
                         return
         cancel.cancel()                             # the launcher died: stop, close the session
 
-    result = trio.run(_connected_actor, name, client_config([endpoint]), ctx, watch, 60)
-    if result is None:
-        raise SystemExit(143)                       # stopped before the end of the run
-    atomic_write_json(Path(result_path), result)
+    try:
+        auth = {"user": name, "password": password} if password else {}
+        result = trio.run(_connected_actor, name, client_config([endpoint], **auth), ctx,
+                          watch, 60)
+        if result is None:
+            raise SystemExit(143)                   # stopped before the end of the run
+        atomic_write_json(Path(result_path), result)
+    except Exception as exc:
+        # One line for the supervisor (it decides whether a restart can help, and says why
+        # the run stopped); the traceback of a bug still goes to stderr.
+        from ..errors import expected_error
+
+        _write_error(Path(result_path), exc)
+        if expected_error(exc) is not None:
+            raise SystemExit(1) from None
+        raise
+
+
+def _write_error(result_path: Path, exc: BaseException) -> None:
+    from ..errors import expected_error, one_line
+
+    leaf = expected_error(exc) or exc
+    kind = "OSError" if isinstance(leaf, OSError) else type(leaf).__name__
+    try:
+        atomic_write_json(result_path.with_suffix(".error.json"),
+                          {"type": kind, "message": f"{type(leaf).__name__}: "
+                                                    f"{one_line(leaf)}"[:500]})
+    except OSError:
+        pass
 
 
 def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, *,
@@ -175,6 +242,21 @@ def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, 
         return _run_processes(ctx, listen_port, poll, record, on_poll)
     finally:
         signal.signal(signal.SIGTERM, previous)
+        _reap_children()
+
+
+def _reap_children() -> None:
+    """Leave no process behind in the launcher's group: every actor process was joined by the
+    supervisor; multiprocessing's resource tracker (started with the first spawn) is stopped and
+    reaped here too (it is started again if this process spawns later)."""
+    import multiprocessing as mp
+    from multiprocessing import resource_tracker
+
+    mp.active_children()
+    try:
+        resource_tracker._resource_tracker._stop()   # type: ignore[attr-defined]
+    except Exception:                                # pragma: no cover - older/newer Pythons
+        pass
 
 
 def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path | None,
@@ -183,15 +265,28 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
 
     port = listen_port or free_port()
     ctx.extra.setdefault("placement", "processes")
+    if ctx.out is not None:
+        check_out(Path(ctx.out))
     endpoint = f"tcp/127.0.0.1:{port}"
     t0 = time.perf_counter()
-    with zenoh.open(router_config([endpoint])) as router, \
-            tempfile.TemporaryDirectory(prefix="qlap-run-") as tmp:
+    remove_stale_run_dirs()
+    # Authorisation by default (docs/security.md): a password per actor, the UI and a viewer,
+    # and the ACL of examples/router.json5; the UI's and viewer's in <out>/bus-credentials.json.
+    from ..bus.auth import CREDENTIALS_FILE, run_acl, run_users, write_credentials
+
+    users = run_users(ACTORS)
+    if ctx.out is not None:
+        ctx.extra["credentials"] = str(write_credentials(Path(ctx.out) / CREDENTIALS_FILE,
+                                                         [endpoint], users))
+    with zenoh.open(router_config([endpoint], users=users, acl=run_acl(users))) as router, \
+            tempfile.TemporaryDirectory(prefix=RUN_DIR_PREFIX) as tmp:
+        (Path(tmp) / OWNER_FILE).write_text(f"{os.getpid()}\n")
         run_ctx = type(ctx).from_json(ctx.to_json())
         run_ctx.extra.setdefault("snapshot_dir", str(Path(tmp) / "snapshots"))
         recorder = _Recorder(router, ctx.run_id, record, ctx.to_json()) \
             if record is not None else None
-        sup = Supervisor(run_ctx, endpoint, Path(tmp), ACTORS, _actor_process)
+        sup = Supervisor(run_ctx, endpoint, Path(tmp), ACTORS, _actor_process,
+                         passwords={a: users[a] for a in ACTORS})
         try:
             sup.start_all()
             while sup.check():
@@ -204,6 +299,42 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
                 recorder.stop()
         results = sup.results()
     return _finish(ctx, "processes", results, time.perf_counter() - t0, sup.report())
+
+
+RUN_DIR_PREFIX = "qlap-run-"
+OWNER_FILE = "launcher.pid"
+
+
+def remove_stale_run_dirs(root: Path | None = None) -> list[Path]:
+    """Remove the temporary directories (snapshots, results) of processes runs whose launcher
+    died without cleaning up (SIGKILL): those whose ``launcher.pid`` names no live process, or
+    that have none and are over a day old. Returns what was removed."""
+    import shutil
+    import tempfile
+
+    root = Path(root) if root is not None else Path(tempfile.gettempdir())
+    removed = []
+    for d in root.glob(f"{RUN_DIR_PREFIX}*"):
+        try:
+            if not d.is_dir() or d.is_symlink() or d.stat().st_uid != os.getuid():
+                continue
+            owner = d / OWNER_FILE
+            if owner.exists():
+                pid = int(owner.read_text().split()[0])
+                try:
+                    os.kill(pid, 0)
+                    continue                        # its launcher is running
+                except ProcessLookupError:
+                    pass
+                except PermissionError:
+                    continue
+            elif time.time() - d.stat().st_mtime < 86400:
+                continue
+            shutil.rmtree(d, ignore_errors=True)
+            removed.append(d)
+        except (OSError, ValueError, IndexError):
+            continue
+    return removed
 
 
 class _Recorder:

@@ -36,6 +36,12 @@ class ActorFailed(RuntimeError):
     """An actor died and could not be restarted: the run is stopped."""
 
 
+def _default_stall() -> float:
+    from .watchdog import DEFAULT_STALL_S
+
+    return DEFAULT_STALL_S
+
+
 @dataclass(frozen=True)
 class Restart:
     """One restart, as reported in summary.json's ``restarted``."""
@@ -57,19 +63,28 @@ class Supervisor:
     """
 
     def __init__(self, ctx: Any, endpoint: str, workdir: Path, names: tuple[str, ...],
-                 target: Callable[[str, str, str, str], None], *,
-                 max_restarts: int = MAX_RESTARTS) -> None:
+                 target: Callable[..., None], *,
+                 max_restarts: int = MAX_RESTARTS,
+                 passwords: dict[str, str] | None = None) -> None:
         self.ctx = ctx
         self.endpoint = endpoint
         self.workdir = Path(workdir)
         self.names = names
         self.target = target
         self.max_restarts = max_restarts
+        self.passwords = dict(passwords or {})
+        """Each actor's password on the router (given to its process, never written)."""
         self.snapshot_dir = None if ctx.snapshot_dir is None else Path(ctx.snapshot_dir)
         self.procs: dict[str, Any] = {}
         self.attempts: dict[str, int] = dict.fromkeys(names, 0)
         self.restarts: list[Restart] = []
         self._spawn = mp.get_context("spawn")
+        from .watchdog import SIZE, Board, Watchdog
+        # The progress board in shared memory: each incarnation of an actor gets its slot.
+        self.shared = {n: self._spawn.RawArray("d", SIZE) for n in names}
+        self.board = Board(names, self.shared)
+        self.watchdog = Watchdog(self.board, float(ctx.extra.get("stall_s", 0) or 0)
+                                 or _default_stall())
 
     def result_path(self, name: str) -> Path:
         return self.workdir / f"{name}.json"
@@ -78,11 +93,14 @@ class Supervisor:
         """Start (or start again) one actor's process."""
         ctx_json = self.ctx.to_json()
         ctx_json["extra"] = {**ctx_json["extra"], **(extra or {})}
+        self.board.slot(name).restarted()
         p = self._spawn.Process(target=self.target, name=f"qlap-{name}",
                                 args=(name, json.dumps(ctx_json), self.endpoint,
-                                      str(self.result_path(name))))
+                                      str(self.result_path(name)), self.shared[name],
+                                      self.passwords.get(name)))
         p.start()
         self.procs[name] = p
+        self.watchdog.reset()
 
     def start_all(self) -> None:
         for name in self.names:
@@ -90,17 +108,40 @@ class Supervisor:
 
     def check(self) -> bool:
         """Restart the actors that died since the last call; True while any is running.
-        Raises :class:`ActorFailed` for a death that cannot be recovered."""
+        Raises :class:`ActorFailed` for a death that cannot be recovered, and
+        :class:`~.watchdog.RunStalled` for a run that makes no progress."""
         for name, p in list(self.procs.items()):
             if p.is_alive() or p.exitcode in (0, None):
                 continue
             self._restart(name, p.exitcode)
-        return any(p.is_alive() for p in self.procs.values())
+        running = any(p.is_alive() for p in self.procs.values())
+        if running:
+            self.watchdog.check()
+        return running
+
+    def error_of(self, name: str) -> dict[str, str] | None:
+        """The one-line error the actor's process wrote before dying, if any."""
+        path = self.result_path(name).with_suffix(".error.json")
+        try:
+            err = json.loads(path.read_text())
+            path.unlink()
+        except (OSError, ValueError):
+            return None
+        return err if isinstance(err, dict) else None
 
     def _restart(self, name: str, code: int) -> None:
         self.procs[name].join(1)
+        err = self.error_of(name)
+        why = f" ({err.get('message')})" if err else ""
+        world = self.procs.get("world")
+        if err is not None and err.get("type") == "OSError":
+            raise ActorFailed(f"actor {name} exited with code {code}{why}; a restart cannot "
+                              "help: run stopped")
+        if name != "world" and world is not None and world.exitcode == 0:
+            raise ActorFailed(f"actor {name} exited with code {code}{why} after the world "
+                              "finished; its inputs cannot be replayed: run stopped")
         if name not in RESTARTABLE:
-            raise ActorFailed(f"actor {name} exited with code {code}; the {name} actor cannot "
+            raise ActorFailed(f"actor {name} exited with code {code}{why}; the {name} actor cannot "
                               "be restarted (its physics state is not snapshotted): run stopped")
         if self.snapshot_dir is None:
             raise ActorFailed(f"actor {name} exited with code {code}; restarting an actor needs "
@@ -124,9 +165,16 @@ class Supervisor:
 
     def stop(self, timeout: float = 10.0) -> None:
         """Terminate (SIGTERM: each closes its session) and reap every process still running."""
+        import os
+        import signal
+
         for p in self.procs.values():
             if p.is_alive():
                 p.terminate()
+                try:
+                    os.kill(p.pid, signal.SIGCONT)  # a stopped process gets its SIGTERM too
+                except (ProcessLookupError, TypeError):
+                    pass
         for p in self.procs.values():
             p.join(timeout)
             if p.is_alive():                # pragma: no cover - a stuck actor

@@ -266,7 +266,16 @@ def test_the_terminal_ui_pauses_and_resumes_an_attached_embedded_run(tmp_path):
             await pilot.pause(0.05)
 
     async def main() -> None:
-        app = QlapApp(connect=endpoint, run_id=ctx.run_id)
+        # The run listens with authentication (docs/security.md): the UI is its `tui` user.
+        from qlap_runtime.bus.auth import CREDENTIALS_FILE, read_credentials
+
+        cred = tmp_path / CREDENTIALS_FILE
+        deadline = time.monotonic() + 60
+        while not cred.exists():
+            assert time.monotonic() < deadline, "no credentials written"
+            await asyncio.sleep(0.05)
+        user, password, _ = read_credentials(cred, "tui")
+        app = QlapApp(connect=endpoint, run_id=ctx.run_id, user=user, password=password)
         async with app.run_test(size=(160, 50)) as pilot:
             await until(pilot, lambda: app.status is not None and app.status.step > 50)
             assert app.status.placement == "embedded" and app.status.clock == "lockstep"

@@ -18,8 +18,9 @@ import worlds
 from actors.common import RunContext
 from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.bus import keys
+from qlap_runtime.bus.auth import CREDENTIALS_FILE, read_credentials
 from qlap_runtime.bus.bridge import Publisher
-from qlap_runtime.bus.config import client_config
+from qlap_runtime.bus.config import BusConfigError, client_config
 from qlap_runtime.bus.foxglove import file_descriptor_set
 from qlap_runtime.bus.recorder import read_mcap, read_metadata, record
 from qlap_runtime.bus.schema import AgentStatus, Sense
@@ -142,8 +143,10 @@ async def test_connected_recorder_learns_the_run_from_its_status(tmp_path):
     stop = trio.Event()
     box: list = []
 
+    config: list = []
+
     async def recorder(task_status=trio.TASK_STATUS_IGNORED):
-        box.append(await record([endpoint], None, out, stop, task_status=task_status))
+        box.append(await record(config[0], None, out, stop, task_status=task_status))
 
     async with trio.open_nursery() as nursery:
         done = trio.Event()
@@ -153,11 +156,15 @@ async def test_connected_recorder_learns_the_run_from_its_status(tmp_path):
             done.set()
         nursery.start_soon(run)
         with trio.fail_after(60):
+            cred = ctx.out / CREDENTIALS_FILE   # the run listens with authentication
             while True:                  # until the run's session listens
                 try:
-                    with zenoh.open(client_config([endpoint])):
+                    _, password, _ = read_credentials(cred, "viewer")
+                    config[:] = [client_config([endpoint], user="viewer", password=password)]
+                    with zenoh.open(client_config([endpoint], user="viewer",
+                                                  password=password)):
                         break
-                except zenoh.ZError:
+                except (zenoh.ZError, BusConfigError):
                     await trio.sleep(0.1)
             await nursery.start(recorder)
             await done.wait()

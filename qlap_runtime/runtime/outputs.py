@@ -1,0 +1,47 @@
+"""The run directory is checked before a run starts (every placement): it must be a directory
+that can be written, with room for at least a checkpoint (docs/outputs.md).
+
+A grown core agent's checkpoint takes about 11 MB (250,000 steps); ``MIN_FREE`` asks for some
+more, so that a run does not learn for hours and then lose its knowledge at the first write.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from ..errors import CliError
+
+MIN_FREE = 32 * 2**20
+"""Bytes that must be free under ``--out`` before a run starts."""
+
+
+class OutputError(CliError):
+    """The run directory cannot hold the run's outputs (exit status 2)."""
+
+
+def check_out(out: Path, min_free: int = MIN_FREE) -> None:
+    """Create ``out`` if needed, write and remove a probe file (64 KiB, fsynced) and check
+    that ``min_free`` bytes are free there; :class:`OutputError` in one line otherwise."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"--out {out}: exists and is not a directory")
+    probe = out / f".qlap-probe-{os.getpid()}"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with open(probe, "wb") as f:
+            f.write(b"\0" * 65536)
+            f.flush()
+            os.fsync(f.fileno())
+        probe.unlink()
+    except OSError as exc:
+        try:
+            probe.unlink(missing_ok=True)
+        except OSError:
+            pass
+        raise OutputError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    free = shutil.disk_usage(out).free
+    if free < min_free:
+        raise OutputError(f"--out {out}: {free / 2**20:.1f} MB free, a run needs at least "
+                          f"{min_free / 2**20:.0f} MB (room for a checkpoint)")

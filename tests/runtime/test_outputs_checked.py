@@ -1,0 +1,157 @@
+"""Outputs are checked before the run in every placement, a write failure stops a processes run
+with one line in bounded time (it used to hang: the restarted executor waited for writers that
+had exited), and a SIGKILLed launcher's temporary directory is removed at the next start
+(issue 13, items 3 and 6)."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from qlap_runtime.placements.launcher import (
+    OWNER_FILE,
+    RUN_DIR_PREFIX,
+    remove_stale_run_dirs,
+    run_embedded,
+)
+from qlap_runtime.runtime.outputs import OutputError, check_out
+
+from ..actors.test_faults import BASE, context
+
+
+@pytest.fixture
+def tiny_fs(tmp_path):
+    """A real 40 MB tmpfs (root and mount(2) needed; skipped otherwise)."""
+    mnt = tmp_path / "fs"
+    mnt.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=40m", "tmpfs", str(mnt)],
+                       capture_output=True, text=True)
+    if r.returncode:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def fill(fs: Path, leave: int = 0) -> int:
+    """Write a ballast file until the filesystem is full (less ``leave`` bytes)."""
+    n = 0
+    with open(fs / "ballast", "wb") as f:
+        chunk = b"\1" * 2**20
+        try:
+            while True:
+                free = os.statvfs(fs).f_bavail * os.statvfs(fs).f_frsize
+                if free <= leave:
+                    break
+                n += f.write(chunk[:max(1, min(len(chunk), free - leave))])
+                f.flush()
+        except OSError:
+            pass
+    return n
+
+
+def test_check_out_refuses_a_full_disk_and_a_file(tiny_fs, tmp_path):
+    fill(tiny_fs, leave=8 * 2**20)
+    with pytest.raises(OutputError, match=r"MB free, a run needs at least 32 MB"):
+        check_out(tiny_fs / "run")
+    check_out(tiny_fs / "run2", min_free=4 * 2**20)          # 8 MB left: enough for 4
+    afile = tmp_path / "f"
+    afile.write_text("")
+    with pytest.raises(OutputError, match="exists and is not a directory"):
+        check_out(afile)
+
+
+def test_embedded_checks_the_run_directory_before_starting(tiny_fs):
+    fill(tiny_fs, leave=2**20)
+    ctx = context(tiny_fs / "run", BASE, 7, "t-out-emb")
+    t0 = time.monotonic()
+    with pytest.raises(OutputError, match="1.0 MB free|0.9 MB free"):
+        run_embedded(ctx)
+    assert time.monotonic() - t0 < 5                         # refused before anything ran
+
+
+def test_a_disk_full_at_the_end_of_a_processes_run_is_one_line_in_bounded_time(tiny_fs):
+    """The executor cannot write knowledge.json: the run stops (no restart, no hang) with one
+    line; metrics.jsonl, written before, stays."""
+    out = tiny_fs / "run"
+    metrics = out / "metrics.jsonl"
+    filled: list[float] = []
+
+    def filler() -> None:
+        while not filled:
+            try:
+                rows = metrics.read_text().splitlines()
+            except OSError:
+                rows = []
+            if rows and json.loads(rows[-1]).get("step", 0) >= 2000:
+                fill(tiny_fs)
+                filled.append(time.monotonic())
+            time.sleep(0.05)
+
+    thread = threading.Thread(target=filler, daemon=True)
+    thread.start()
+    proc = subprocess.Popen([sys.executable, "-m", "qlap_runtime.cli", "run", "--headless",
+                             "--quiet", "--placement", "processes", "--world", "core2d",
+                             "--steps", "3000", "--babble-steps", "1500", "--lag", "200",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    _, stderr = proc.communicate(timeout=240)
+    end = time.monotonic()
+    left = group_members(proc.pid)                          # its own process group
+    r = subprocess.CompletedProcess(proc.args, proc.returncode, "", stderr)
+    filled.append(0.0)                                       # stop the filler
+    thread.join(5)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1, r.stderr
+    assert "Traceback" not in lines[-1]
+    assert lines[-1].startswith("qlap run: actor executor exited with code 1 (OSError: "), \
+        lines[-1]
+    assert "No space left on device" in lines[-1]
+    assert lines[-1].endswith("a restart cannot help: run stopped")
+    assert end - filled[0] < 60
+    assert len(metrics.read_text().splitlines()) >= 2       # what was written stays
+    assert not (out / "knowledge.json").exists()
+    assert left == [], f"processes left in the launcher's group: {left}"
+
+
+def group_members(pgid: int) -> list[str]:
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                stat = (d / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat.rsplit(")", 1)[1].split()
+            if int(fields[2]) == pgid:              # pgrp
+                out.append(f"{d.name} {stat.split(' (', 1)[1].split(')')[0]} {fields[0]}")
+    return out
+
+
+def _exit_now() -> None:
+    pass
+
+
+def test_stale_launcher_directories_are_removed_at_the_next_start(tmp_path):
+    p = mp.get_context("spawn").Process(target=_exit_now)
+    p.start()
+    p.join()
+    dead, alive, bare = (tmp_path / f"{RUN_DIR_PREFIX}{n}" for n in ("dead", "alive", "bare"))
+    for d, pid in ((dead, p.pid), (alive, os.getpid())):
+        (d / "snapshots" / "executor").mkdir(parents=True)
+        (d / OWNER_FILE).write_text(f"{pid}\n")
+    bare.mkdir()
+    assert remove_stale_run_dirs(tmp_path) == [dead]
+    assert not dead.exists() and alive.exists() and bare.exists()
+    old = time.time() - 2 * 86400
+    os.utime(bare, (old, old))
+    assert remove_stale_run_dirs(tmp_path) == [bare]
