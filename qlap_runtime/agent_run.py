@@ -9,6 +9,7 @@ checkpoint: goal mode, learning off, −0.01 a step, +9.99 on success, 300 steps
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -121,6 +122,25 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     if failed is not None:
         raise failed
     return agent, summary
+
+
+def knowledge_json(agent: Agent) -> str:
+    """The text of the agent's ``knowledge.json`` (the format of ``atomic_write_json``): what
+    every placement's knowledge is compared by."""
+    return json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+
+
+def sync_knowledge(world_spec: str, steps: int, seed: int, params: Params) -> str:
+    """The oracle of the actor placements: ``knowledge.json`` of the synchronous loop in a fresh
+    ``world_spec`` with the same steps, seed and parameters."""
+    import worlds
+
+    world = worlds.make(world_spec)
+    try:
+        agent, _ = run_agent(world, steps, seed, params=params)
+    finally:
+        world.close()
+    return knowledge_json(agent)
 
 
 def goal_index(agent: Agent, goal: Any) -> tuple[int, int]:

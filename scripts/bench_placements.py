@@ -10,7 +10,6 @@ Usage: scripts/bench_placements.py [--world core] [--steps 6000] [--lag 500] [--
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -19,7 +18,7 @@ from pathlib import Path
 def main() -> None:
     import worlds
     from actors.common import RunContext
-    from qlap_runtime.agent_run import params_for_world, run_agent
+    from qlap_runtime.agent_run import knowledge_json, params_for_world, run_agent
     from qlap_runtime.placements.launcher import run_embedded, run_processes
     from qlap_runtime.qlap import Params
 
@@ -36,7 +35,7 @@ def main() -> None:
     agent, _ = run_agent(world, args.steps, args.seed, params=params)
     wall = time.perf_counter() - t0
     world.close()
-    reference = json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+    reference = knowledge_json(agent)
     print(f"{args.world}, {args.steps} steps, lag {args.lag}, babbling {args.babble}:")
     print(f"  sync       {args.steps / wall:8,.0f} steps/s")
     for name, fn in (("embedded", run_embedded), ("processes", run_processes)):

@@ -33,7 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import worlds
 from actors.common import RunContext
-from qlap_runtime.agent_run import params_for_world, run_agent
+from qlap_runtime import agent_run
+from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.placements.launcher import run_processes
 from qlap_runtime.qlap import Params
 from qlap_runtime.runtime.snapshot import latest_snapshot
@@ -97,12 +98,7 @@ def plan(rng: np.random.Generator, kills: int, steps: int, every: int) -> list[K
 
 
 def sync_knowledge(steps: int, seed: int, params: Params) -> str:
-    w = worlds.make(WORLD)
-    try:
-        agent, _ = run_agent(w, steps, seed, params=params)
-    finally:
-        w.close()
-    return json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+    return agent_run.sync_knowledge(WORLD, steps, seed, params)
 
 
 def trial(i: int, args: argparse.Namespace) -> dict:

@@ -12,7 +12,7 @@ import pytest
 
 import worlds
 from actors.common import RunContext
-from qlap_runtime.agent_run import WorldFailed, params_for_world, run_agent
+from qlap_runtime.agent_run import WorldFailed, knowledge_json, params_for_world, run_agent
 from qlap_runtime.placements.launcher import run_embedded, run_processes
 from qlap_runtime.qlap import Params
 from tests.actors import badworld
@@ -39,7 +39,7 @@ def sync_run():
         agent, summary = run_agent(world, STEPS, 3, params=PARAMS)
     finally:
         world.close()
-    return json.dumps(agent.knowledge(), indent=1, sort_keys=True), summary
+    return knowledge_json(agent), summary
 
 
 def test_sync_loop_rejects_nan_inf_and_huge_values(sync_run):

@@ -18,7 +18,8 @@ import trio
 
 import worlds
 from actors.common import RunContext
-from qlap_runtime.agent_run import params_for_world, run_agent
+from qlap_runtime import agent_run
+from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import TrioSubscriber
 from qlap_runtime.bus.schema import AgentStatus, Control, encode
@@ -40,12 +41,7 @@ def context(tmp_path: Path, run_id: str, steps: int, seed: int, params: Params =
 def sync_knowledge(ctx: RunContext, steps: int) -> str:
     """knowledge.json of the synchronous loop (equal to an uninterrupted lockstep run's:
     tests/actors/test_lockstep.py)."""
-    world = worlds.make("core2d")
-    try:
-        agent, _ = run_agent(world, steps, ctx.seed, params=ctx.params)
-    finally:
-        world.close()
-    return json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+    return agent_run.sync_knowledge("core2d", steps, ctx.seed, ctx.params)
 
 
 class Pilot:

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import worlds
-from qlap_runtime.agent_run import params_for_world, run_agent
+from qlap_runtime.agent_run import knowledge_json, params_for_world, run_agent
 from qlap_runtime.placements.launcher import free_port
 from qlap_runtime.qlap import Params
 
@@ -63,7 +63,7 @@ def test_router_and_five_actor_processes_learn_what_the_synchronous_loop_learns(
                          params=params_for_world(world, Params(batch_lag=LAG,
                                                                babble_steps=BABBLE)))
     world.close()
-    expected = json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+    expected = knowledge_json(agent)
     assert (tmp_path / "knowledge.json").read_text() == expected
 
 

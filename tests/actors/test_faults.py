@@ -14,7 +14,8 @@ import pytest
 
 import worlds
 from actors.common import RunContext
-from qlap_runtime.agent_run import params_for_world, run_agent
+from qlap_runtime import agent_run
+from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.bus.recorder import read_mcap
 from qlap_runtime.placements.launcher import run_processes
 from qlap_runtime.qlap import Params
@@ -31,12 +32,7 @@ BASE = Params(babble_steps=1500, dbn_period=500, landmark_period=1000, batch_lag
 
 def sync_knowledge(params: Params, seed: int) -> str:
     """The oracle: the synchronous loop's knowledge with the same seed and parameters."""
-    world = worlds.make("core2d")
-    try:
-        agent, _ = run_agent(world, STEPS, seed, params=params)
-    finally:
-        world.close()
-    return json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+    return agent_run.sync_knowledge("core2d", STEPS, seed, params)
 
 
 def context(tmp_path, params: Params, seed: int, run_id: str) -> RunContext:

@@ -8,7 +8,8 @@ import pytest
 
 import worlds
 from actors.common import RunContext
-from qlap_runtime.agent_run import params_for_world, run_agent
+from qlap_runtime import agent_run
+from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.placements.launcher import run_embedded, run_processes
 from qlap_runtime.qlap import Params
 
@@ -17,12 +18,7 @@ BASE = Params(babble_steps=1500, dbn_period=500, landmark_period=1000)
 
 
 def sync_knowledge(world_spec: str, params: Params, seed: int) -> str:
-    world = worlds.make(world_spec)
-    try:
-        agent, _ = run_agent(world, STEPS, seed, params=params)
-    finally:
-        world.close()
-    return json.dumps(agent.knowledge(), indent=1, sort_keys=True)
+    return agent_run.sync_knowledge(world_spec, STEPS, seed, params)
 
 
 def context(tmp_path, world_spec: str, params: Params, seed: int, run_id: str) -> RunContext:

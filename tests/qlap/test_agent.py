@@ -193,17 +193,24 @@ def knowledge_snapshot(agent: Agent) -> dict[str, bytes]:
     return out
 
 
-def test_evaluation_changes_nothing_the_agent_learned(trained, tmp_path):
-    from qlap_runtime.agent_run import evaluate, goal_policy
+def evaluation_copy(trained, tmp_path):
+    """The trained agent saved and loaded as ``qlap eval`` loads it, its knowledge snapshot and
+    a toy task world."""
     from tests.qlap.toyworld import ToyTaskWorld
-    from worlds.evaluate import run_trials
 
     agent, _ = trained
     agent.learning = True
     save_agent(agent, tmp_path / "ck")
     ev = load_agent(tmp_path / "ck")
-    before = knowledge_snapshot(ev)
-    world = ToyTaskWorld()
+    return ev, knowledge_snapshot(ev), ToyTaskWorld()
+
+
+def test_evaluation_changes_nothing_the_agent_learned(trained, tmp_path):
+    from qlap_runtime.agent_run import evaluate, goal_policy
+    from tests.qlap.toyworld import ToyTaskWorld
+    from worlds.evaluate import run_trials
+
+    ev, before, world = evaluation_copy(trained, tmp_path)
     res = run_trials(world, "x_up", 10, 3, goal_policy(ev, world, "x_up"))
     assert res["successes"] >= 8                         # the plans were used
     assert ev.counters.successes + ev.counters.failures >= 10
@@ -217,15 +224,9 @@ def test_evaluation_changes_nothing_the_agent_learned(trained, tmp_path):
 
 def test_evaluation_leaves_the_perception_history_alone(trained, tmp_path):
     from qlap_runtime.agent_run import goal_policy
-    from tests.qlap.toyworld import ToyTaskWorld
     from worlds.evaluate import run_trials
 
-    agent, _ = trained
-    agent.learning = True
-    save_agent(agent, tmp_path / "ck")
-    ev = load_agent(tmp_path / "ck")
-    before = knowledge_snapshot(ev)
-    world = ToyTaskWorld()
+    ev, before, world = evaluation_copy(trained, tmp_path)
     run_trials(world, "x_up", 10, 3, goal_policy(ev, world, "x_up"))
     ev.end_trial()
     assert knowledge_snapshot(ev) == before
@@ -238,15 +239,9 @@ def test_sarsa_adapts_within_a_trial_and_the_next_trial_starts_from_the_checkpoi
     import dataclasses
 
     from qlap_runtime.agent_run import goal_policy
-    from tests.qlap.toyworld import ToyTaskWorld
     from worlds.evaluate import run_trials
 
-    agent, _ = trained
-    agent.learning = True
-    save_agent(agent, tmp_path / "ck")
-    ev = load_agent(tmp_path / "ck")
-    before = knowledge_snapshot(ev)
-    world = ToyTaskWorld()
+    ev, before, world = evaluation_copy(trained, tmp_path)
     run_trials(world, "x_up", 3, 3, goal_policy(ev, world, "x_up"))
     during = knowledge_snapshot(ev)                      # the last trial not yet undone
     changed = sorted(k for k in before if before[k] != during[k])
@@ -262,15 +257,9 @@ def test_sarsa_adapts_within_a_trial_and_the_next_trial_starts_from_the_checkpoi
 
 def test_the_same_trials_with_learning_on_would_change_the_knowledge(trained, tmp_path):
     """The control of the test above: the snapshot does see what practice changes."""
-    from tests.qlap.toyworld import ToyTaskWorld
     from worlds.evaluate import run_trials
 
-    agent, _ = trained
-    agent.learning = True
-    save_agent(agent, tmp_path / "ck")
-    ev = load_agent(tmp_path / "ck")
-    before = knowledge_snapshot(ev)
-    world = ToyTaskWorld()
+    ev, before, world = evaluation_copy(trained, tmp_path)
     from qlap_runtime.agent_run import goal_policy
 
     policy = goal_policy(ev, world, "x_up")
