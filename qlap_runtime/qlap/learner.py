@@ -662,8 +662,9 @@ class ModelLearner:
             for i, q, gi in np.argwhere(passing).tolist():
                 v = real_vars[i]
                 var = v.index
-                if var == dbn.antecedent.var and v.kind is not Kind.MOTOR:
-                    continue                                            # App. D.2
+                if (var == dbn.antecedent.var) != (v.kind is Kind.MOTOR):
+                    continue            # App. D.2: an antecedent's variable only if a motor;
+                                        # a motor only as the antecedent (D.1: no motor context)
                 col = X[:, var]
                 space = spaces[var]
                 in_q = Q[:, var] == q
