@@ -148,3 +148,34 @@ def test_all_candidates_at_once_choose_as_one_at_a_time(learned: ModelLearner):
                                                       -p[0]))
                 assert acts.choose(ctx, options, by_entropy) == want
             assert acts.evaluate(ctx) == ev(ctx)
+
+
+def test_algorithm_4_puts_no_motor_in_a_context():
+    """App. D.1: context variables are magnitude or nominal; D.2: a motor may get a landmark
+    from a DBN only as its antecedent. A second motor w gates whether y follows x (y rises
+    when x rises and w > 0.5): before this rule Algorithm 4 put w into the context of
+    ⟨ẋ→[+] ⇒ ẏ→[+]⟩ with landmarks at w ≈ 0.51 and 0.63 (docs/decisions.md 38)."""
+    from qlap_runtime.qlap import VariableTable
+    from qlap_runtime.qlap.babble import Babbler
+    from tests.qlap.toyworld import Spec
+
+    specs = (Spec("u", "motor", -1.0, 1.0), Spec("w", "motor", -1.0, 1.0),
+             Spec("x", "magnitude"), Spec("y", "magnitude"))
+    babbler = Babbler(VariableTable.from_specs(specs), Params(), np.random.default_rng(0))
+    learner = ModelLearner(specs, Params())
+    motors = {learner.table.index("u"), learner.table.index("w")}
+    x = y = 5.0
+    for t in range(30_000):
+        m, _ = babbler.step()
+        learner.observe(t, {"u": m["u"], "w": m["w"], "x": x, "y": y})
+        if t % 2000 == 1:                                   # after each batch
+            assert not [d for d in learner.dbns.values() if motors & set(d.context)]
+        if abs(m["u"]) > 0.3:
+            nx = float(np.clip(x + 0.5 * m["u"], 0.0, 10.0))
+            if nx > x and m["w"] > 0.5:
+                y = y + 0.5 if y < 9.5 else 0.0
+            x = nx
+    w = learner.perception.spaces[learner.table.index("w")].landmarks
+    assert [m.source for m in w] == ["initial"], w
+    u = learner.perception.spaces[learner.table.index("u")].landmarks
+    assert any(0.25 < m.lb <= m.ub < 0.35 for m in u), u    # the threshold, via ⟨u→q ⇒ ẋ⟩
