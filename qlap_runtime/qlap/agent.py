@@ -681,9 +681,13 @@ class Agent:
 
     def _usable_plans(self, key: ActionKey, p: Percept, plans: list[Plan],
                       q_list: list[int] | None = None) -> list[Plan]:
-        """Plans of a(v, q) usable in this state: their state is known (no plan variable
-        without a value, as on the step after a discontinuity), and magnitude plans from the
-        current side. ``q_list`` is ``p.q.tolist()`` when the caller has it."""
+        """Plans of a(v, q) usable in this state: none on a discontinuity step (the agent's
+        state is not fully known: no direction of change has a value, so the plans a call
+        leads to cannot run; docs/decisions.md 39), else those whose state is known (no plan
+        variable without a value) and magnitude plans from the current side. ``q_list`` is
+        ``p.q.tolist()`` when the caller has it."""
+        if p.discontinuity:
+            return []        # the state is not fully known (no direction of change is defined)
         var, q = key
         full = p.q.tolist() if q_list is None else q_list
         known = sorted((pl for pl in plans

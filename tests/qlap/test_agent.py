@@ -513,3 +513,36 @@ def test_a_reliable_action_that_lost_its_plans_learns_again(tmp_path):
     assert up not in agent.learner.reliable_actions
     run(agent, world, 30_000, 34_001)                  # two DBN batches
     assert any(p.action == up for p in agent.plans.values())
+
+
+def test_on_a_discontinuity_step_no_action_is_applicable():
+    """docs/decisions.md 39: on the step after a jump no direction of change has a value, so a
+    plan whose own state is known (here a(b, true) by ⟨{}: ↑x→(8, +inf) ⇒ b→true⟩, whose space
+    is x and b) would still lead to sub-actions that cannot run: before this rule IAC chose
+    such actions on these steps and their calls failed at once (core: 85 of 86 practice calls
+    of a(T, true) from a 250k agent)."""
+    from qlap_runtime.qlap.delta import Delta
+    from tests.qlap.toyworld import Spec
+
+    specs = (Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"),
+             Spec("b", "nominal", values=("false", "true")))
+    agent = Agent(specs, PARAMS, seed=1)
+    for t in range(3):
+        agent.step(t, {"x": 1.0, "b": 0.0})
+    x, b = agent.table.index("x"), agent.table.index("b")
+    agent.learner.apply_delta(Delta(1, 2, 2, (
+        ("add_landmark", x, 8.0, 8.0, "dbn", 2, None, None, None),
+        ("add_dbn", "change", [x, 2, 1], [b, 1, 0], []))))
+    agent.step(3, {"x": 1.0, "b": 0.0})
+    dbn = next(d for d in agent.learner.dbns.values() if d.consequent.var == b)
+    plan = agent._add_plan(dbn, 3)
+    assert plan is not None and set(plan.space.vars) == {x, b}
+    agent.step(4, {"x": 2.0, "b": 0.0})
+    p = agent._last_percept
+    assert agent._usable_plans((b, 1), p, [plan]) == [plan]
+    assert (b, 1) in agent._applicable(p)[0]
+    agent.step(5, {"x": 5.0, "b": 0.0}, discontinuity=True)
+    p = agent._last_percept
+    assert p.discontinuity and plan.space.index_from_full(p.q) is not None
+    assert agent._usable_plans((b, 1), p, [plan]) == []
+    assert agent._applicable(p) == ([], [])
