@@ -801,7 +801,12 @@ class Agent:
             return FAIL                                          # §5.5.2 plan rule 3
         f.calls += 1
         status = self._call(key2, p)
-        return status                                            # FAIL: rule 4
+        if status == FAIL:
+            # Rule 4: the sub-action failed as it was called, and the plan fails with it. It
+            # has terminated, so Sarsa updates its pair as terminal (§5.2.2), or the policy
+            # would choose it from this state again and again (docs/decisions.md 40).
+            self._sarsa(plan, f, p, s2, False, None)
+        return status
 
     def _sarsa_on(self) -> bool:
         """Sarsa learns while the agent learns, unless ablated (§5.2.2, §7.11); with learning

@@ -546,3 +546,38 @@ def test_on_a_discontinuity_step_no_action_is_applicable():
     assert p.discontinuity and plan.space.index_from_full(p.q) is not None
     assert agent._usable_plans((b, 1), p, [plan]) == []
     assert agent._applicable(p) == ([], [])
+
+
+def test_a_sub_action_that_fails_as_it_is_called_gets_a_terminal_sarsa_update():
+    """§5.2.2: "each time an action terminates, the agent performs a Sarsa update"; §5.5.2
+    rule 4: a plan fails when the action its policy chose fails as it is called. a(b, true)'s
+    only way, a(x, (8, +inf)), has no plan: its pair's Q moves to the failure's r' = 0,
+    Q ← Q + α(0 − Q) = 0.8 Q, and nothing else changes (docs/decisions.md 40)."""
+    from qlap_runtime.qlap.delta import Delta
+    from tests.qlap.toyworld import Spec
+
+    specs = (Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"),
+             Spec("b", "nominal", values=("false", "true")))
+    agent = Agent(specs, PARAMS, seed=1)
+    for t in range(3):
+        agent.step(t, {"x": 1.0, "b": 0.0})
+    x, b = agent.table.index("x"), agent.table.index("b")
+    agent.learner.apply_delta(Delta(1, 2, 2, (
+        ("add_landmark", x, 8.0, 8.0, "dbn", 2, None, None, None),
+        ("add_dbn", "change", [x, 2, 1], [b, 1, 0], []))))
+    agent.step(3, {"x": 1.0, "b": 0.0})
+    dbn = next(d for d in agent.learner.dbns.values() if d.consequent.var == b)
+    plan = agent._add_plan(dbn, 3)
+    agent.step(4, {"x": 2.0, "b": 0.0})
+    p = agent._last_percept
+    agent.learning = False                  # no Dyna sweep after the call: Sarsa alone
+    before = plan.q.copy()
+    assert agent._call((b, 1), p) == "fail" and agent.call_list == []
+    changed = np.argwhere(plan.q != before)
+    assert len(changed) == 1
+    s, a = changed[0]
+    assert plan.q[s, a] == pytest.approx(0.8 * before[s, a], abs=1e-12) and before[s, a] != 0.0
+    assert (plan.actions[a].var, plan.actions[a].value) == (x, 2)    # a(x, (8, +inf))
+    assert s == plan.space.index_from_full(p.q)
+    agent.end_trial()                       # learning off: the trial's Sarsa is undone
+    assert np.array_equal(plan.q, before)
