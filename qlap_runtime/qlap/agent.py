@@ -582,6 +582,11 @@ class Agent:
                 self.hold_until = t + self.learner.k
                 return
             self.mode = "idle"
+        if p.discontinuity:
+            # No action is applicable on this step (docs/decisions.md 39): wait at rest and
+            # choose on the next step, when every variable has a value again.
+            self.motor = dict(self.rest)
+            return
         self._choose_exploration(p)
 
     def _act_goal(self, p: Percept) -> None:
@@ -681,9 +686,13 @@ class Agent:
 
     def _usable_plans(self, key: ActionKey, p: Percept, plans: list[Plan],
                       q_list: list[int] | None = None) -> list[Plan]:
-        """Plans of a(v, q) usable in this state: their state is known (no plan variable
-        without a value, as on the step after a discontinuity), and magnitude plans from the
-        current side. ``q_list`` is ``p.q.tolist()`` when the caller has it."""
+        """Plans of a(v, q) usable in this state: none on a discontinuity step (the agent's
+        state is not fully known: no direction of change has a value, so the plans a call
+        leads to cannot run; docs/decisions.md 39), else those whose state is known (no plan
+        variable without a value) and magnitude plans from the current side. ``q_list`` is
+        ``p.q.tolist()`` when the caller has it."""
+        if p.discontinuity:
+            return []        # the state is not fully known (no direction of change is defined)
         var, q = key
         full = p.q.tolist() if q_list is None else q_list
         known = sorted((pl for pl in plans
@@ -797,7 +806,12 @@ class Agent:
             return FAIL                                          # §5.5.2 plan rule 3
         f.calls += 1
         status = self._call(key2, p)
-        return status                                            # FAIL: rule 4
+        if status == FAIL:
+            # Rule 4: the sub-action failed as it was called, and the plan fails with it. It
+            # has terminated, so Sarsa updates its pair as terminal (§5.2.2), or the policy
+            # would choose it from this state again and again (docs/decisions.md 40).
+            self._sarsa(plan, f, p, s2, False, None)
+        return status
 
     def _sarsa_on(self) -> bool:
         """Sarsa learns while the agent learns, unless ablated (§5.2.2, §7.11); with learning

@@ -513,3 +513,78 @@ def test_a_reliable_action_that_lost_its_plans_learns_again(tmp_path):
     assert up not in agent.learner.reliable_actions
     run(agent, world, 30_000, 34_001)                  # two DBN batches
     assert any(p.action == up for p in agent.plans.values())
+
+
+def test_on_a_discontinuity_step_no_action_is_applicable():
+    """docs/decisions.md 39: on the step after a jump no direction of change has a value, so a
+    plan whose own state is known (here a(b, true) by ⟨{}: ↑x→(8, +inf) ⇒ b→true⟩, whose space
+    is x and b) would still lead to sub-actions that cannot run: before this rule IAC chose
+    such actions on these steps and their calls failed at once (core: 85 of 86 practice calls
+    of a(T, true) from a 250k agent)."""
+    from qlap_runtime.qlap.delta import Delta
+    from tests.qlap.toyworld import Spec
+
+    specs = (Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"),
+             Spec("b", "nominal", values=("false", "true")))
+    agent = Agent(specs, PARAMS.replace(babble_steps=3, babble_probability=0.0), seed=1)
+    for t in range(3):
+        agent.step(t, {"x": 1.0, "b": 0.0})
+    x, b = agent.table.index("x"), agent.table.index("b")
+    agent.learner.apply_delta(Delta(1, 2, 2, (
+        ("add_landmark", x, 8.0, 8.0, "dbn", 2, None, None, None),
+        ("add_dbn", "change", [x, 2, 1], [b, 1, 0], []))))
+    agent.step(3, {"x": 1.0, "b": 0.0})
+    dbn = next(d for d in agent.learner.dbns.values() if d.consequent.var == b)
+    plan = agent._add_plan(dbn, 3)
+    assert plan is not None and set(plan.space.vars) == {x, b}
+    agent.step(4, {"x": 2.0, "b": 0.0})
+    p = agent._last_percept
+    assert agent._usable_plans((b, 1), p, [plan]) == [plan]
+    assert (b, 1) in agent._applicable(p)[0]
+    agent.clear_goal()                      # idle, as after a call that ended
+    practice, commands = agent.counters.practice_calls, agent.counters.babble_commands
+    motor = agent.step(5, {"x": 5.0, "b": 0.0}, discontinuity=True)
+    p = agent._last_percept
+    assert p.discontinuity and plan.space.index_from_full(p.q) is not None
+    assert agent._usable_plans((b, 1), p, [plan]) == []
+    assert agent._applicable(p) == ([], [])
+    # the agent waits at rest for one step: no practice call, no babbling command
+    assert (agent.counters.practice_calls, agent.counters.babble_commands) == (practice, commands)
+    assert agent.call_list == [] and agent.mode == "idle" and motor == agent.rest
+    agent.step(6, {"x": 5.5, "b": 0.0})
+    assert agent.counters.practice_calls + agent.counters.babble_commands > practice + commands
+
+
+def test_a_sub_action_that_fails_as_it_is_called_gets_a_terminal_sarsa_update():
+    """§5.2.2: "each time an action terminates, the agent performs a Sarsa update"; §5.5.2
+    rule 4: a plan fails when the action its policy chose fails as it is called. a(b, true)'s
+    only way, a(x, (8, +inf)), has no plan: its pair's Q moves to the failure's r' = 0,
+    Q ← Q + α(0 − Q) = 0.8 Q, and nothing else changes (docs/decisions.md 40)."""
+    from qlap_runtime.qlap.delta import Delta
+    from tests.qlap.toyworld import Spec
+
+    specs = (Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"),
+             Spec("b", "nominal", values=("false", "true")))
+    agent = Agent(specs, PARAMS, seed=1)
+    for t in range(3):
+        agent.step(t, {"x": 1.0, "b": 0.0})
+    x, b = agent.table.index("x"), agent.table.index("b")
+    agent.learner.apply_delta(Delta(1, 2, 2, (
+        ("add_landmark", x, 8.0, 8.0, "dbn", 2, None, None, None),
+        ("add_dbn", "change", [x, 2, 1], [b, 1, 0], []))))
+    agent.step(3, {"x": 1.0, "b": 0.0})
+    dbn = next(d for d in agent.learner.dbns.values() if d.consequent.var == b)
+    plan = agent._add_plan(dbn, 3)
+    agent.step(4, {"x": 2.0, "b": 0.0})
+    p = agent._last_percept
+    agent.learning = False                  # no Dyna sweep after the call: Sarsa alone
+    before = plan.q.copy()
+    assert agent._call((b, 1), p) == "fail" and agent.call_list == []
+    changed = np.argwhere(plan.q != before)
+    assert len(changed) == 1
+    s, a = changed[0]
+    assert plan.q[s, a] == pytest.approx(0.8 * before[s, a], abs=1e-12) and before[s, a] != 0.0
+    assert (plan.actions[a].var, plan.actions[a].value) == (x, 2)    # a(x, (8, +inf))
+    assert s == plan.space.index_from_full(p.q)
+    agent.end_trial()                       # learning off: the trial's Sarsa is undone
+    assert np.array_equal(plan.q, before)
