@@ -582,11 +582,6 @@ class Agent:
                 self.hold_until = t + self.learner.k
                 return
             self.mode = "idle"
-        if p.discontinuity:
-            # No action is applicable on this step (docs/decisions.md 39): wait at rest and
-            # choose on the next step, when every variable has a value again.
-            self.motor = dict(self.rest)
-            return
         self._choose_exploration(p)
 
     def _act_goal(self, p: Percept) -> None:

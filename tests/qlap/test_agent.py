@@ -526,7 +526,7 @@ def test_on_a_discontinuity_step_no_action_is_applicable():
 
     specs = (Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"),
              Spec("b", "nominal", values=("false", "true")))
-    agent = Agent(specs, PARAMS.replace(babble_steps=3, babble_probability=0.0), seed=1)
+    agent = Agent(specs, PARAMS, seed=1)
     for t in range(3):
         agent.step(t, {"x": 1.0, "b": 0.0})
     x, b = agent.table.index("x"), agent.table.index("b")
@@ -541,18 +541,11 @@ def test_on_a_discontinuity_step_no_action_is_applicable():
     p = agent._last_percept
     assert agent._usable_plans((b, 1), p, [plan]) == [plan]
     assert (b, 1) in agent._applicable(p)[0]
-    agent.clear_goal()                      # idle, as after a call that ended
-    practice, commands = agent.counters.practice_calls, agent.counters.babble_commands
-    motor = agent.step(5, {"x": 5.0, "b": 0.0}, discontinuity=True)
+    agent.step(5, {"x": 5.0, "b": 0.0}, discontinuity=True)
     p = agent._last_percept
     assert p.discontinuity and plan.space.index_from_full(p.q) is not None
     assert agent._usable_plans((b, 1), p, [plan]) == []
     assert agent._applicable(p) == ([], [])
-    # the agent waits at rest for one step: no practice call, no babbling command
-    assert (agent.counters.practice_calls, agent.counters.babble_commands) == (practice, commands)
-    assert agent.call_list == [] and agent.mode == "idle" and motor == agent.rest
-    agent.step(6, {"x": 5.5, "b": 0.0})
-    assert agent.counters.practice_calls + agent.counters.babble_commands > practice + commands
 
 
 def test_a_sub_action_that_fails_as_it_is_called_gets_a_terminal_sarsa_update():
