@@ -393,11 +393,15 @@ def _publish(path: Path, data: bytes) -> None:
     os.chmod(path, 0o644)
 
 
-def _git_commit(cwd: Path) -> str:
+def _git_commit(cwd: Path, outputs: Sequence[Path] = ()) -> str:
+    """HEAD, "with uncommitted changes" when tracked files differ from it — except
+    ``outputs``, the page and images this very run writes."""
+    excluded = [f":(exclude){_shown(path)}" for path in outputs]
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=cwd,
                               capture_output=True, text=True, timeout=10)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no",
+                                "--", ".", *excluded],
                                cwd=cwd, capture_output=True, text=True, timeout=10)
     except (OSError, subprocess.SubprocessError):
         return "unknown"
@@ -422,7 +426,8 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
     path relative to the page."""
     date = date or _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     cores = cores if cores is not None else os.cpu_count()
-    commit = commit or _git_commit(Path.cwd())
+    commit = commit or _git_commit(Path.cwd(), (Path(cfg.out) / "results.md",
+                                                Path(cfg.out) / "results"))
     labels = list(data["runs"])
     n = len(labels)
     typed = shlex.join(cfg.argv) if cfg.argv else "scripts/learning_results.py"
