@@ -308,6 +308,11 @@ class World(abc.ABC):
         self._jumped = False
         return self._publish(obs)
 
+    def observe(self) -> dict[str, float]:
+        """The latest observation as the agent sees it (only the variables available now): what
+        ``reset``, ``step`` or ``set_state`` returned last."""
+        return self._publish(self.observation)
+
     def change(self, name: str) -> str | None:
         """The direction of change of magnitude ``name`` at the latest step, as the agent's
         perception judges it: ``direction(previous, current, DOT_BAND, dt=step_seconds)``, i.e.

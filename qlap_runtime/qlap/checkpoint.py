@@ -56,6 +56,10 @@ LINK_MARKER = "qlap-checkpoint-link"
 links cannot be made): ``qlap-checkpoint-link step-0250000``."""
 
 
+WORLD_FILE = "world.json"
+"""The world's state in a checkpoint (``World.get_state``), for an exact ``--resume``."""
+
+
 class CheckpointError(ValueError):
     """A checkpoint that cannot be read (missing, corrupt, wrong format or version)."""
 
@@ -640,14 +644,47 @@ def prune_checkpoints(checkpoints: str | Path, keep: int | None) -> list[Path]:
     return removed
 
 
+def save_world_state(directory: str | Path, state: Any) -> None:
+    """Write ``world.json`` (a ``World.get_state()``; None writes nothing) atomically."""
+    if state is not None:
+        _write_compact_json(Path(directory) / WORLD_FILE, state)
+
+
+def load_world_state(directory: str | Path) -> dict[str, Any] | None:
+    """The world state a checkpoint holds (None: it has none, e.g. written before world
+    states were saved). A corrupt file raises :class:`CheckpointError` naming it."""
+    path = resolve_checkpoint(directory) / WORLD_FILE
+    try:
+        state = json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"{path}: corrupt world state ({exc})") from None
+    if not isinstance(state, dict) or state.get("format") != "qlap-world-state":
+        raise CheckpointError(f"{path}: not a qlap-world-state file")
+    return state
+
+
+def restore_world(world: Any, state: dict[str, Any], where: str | Path) -> dict[str, float]:
+    """``world.set_state(state)``, any failure a one-line :class:`CheckpointError` naming
+    ``where``; returns the observation the agent sees now."""
+    try:
+        return world.set_state(state)
+    except (ValueError, KeyError, TypeError, IndexError, AttributeError, OverflowError) as exc:
+        what = f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError) else str(exc)
+        raise CheckpointError(f"{where}: the world state cannot be restored ({what})") from None
+
+
 def save_step_checkpoint(agent: Any, checkpoints: str | Path, step: int,
-                         world: str | None = None, keep: int | None = None) -> Path | None:
-    """The periodic checkpoint ``checkpoints/step-NNNNNNN`` (``step``: steps observed), then
-    the retention of ``keep`` (None: keep all; 0: write none). Returns its path (None with
-    ``keep == 0``)."""
+                         world: str | None = None, keep: int | None = None,
+                         world_state: Any = None) -> Path | None:
+    """The periodic checkpoint ``checkpoints/step-NNNNNNN`` (``step``: steps observed), with
+    the world's state when given, then the retention of ``keep`` (None: keep all; 0: write
+    none). Returns its path (None with ``keep == 0``)."""
     if keep == 0:
         return None
     path = save_agent(agent, Path(checkpoints) / step_name(step), world)
+    save_world_state(path, world_state)
     prune_checkpoints(checkpoints, keep)
     return path
 
@@ -660,10 +697,11 @@ def _remove(path: Path) -> None:
 
 
 def save_final_checkpoint(agent: Any, checkpoints: str | Path, world: str | None = None,
-                          same_as: str | Path | None = None) -> Path:
-    """Write ``checkpoints/final``. ``same_as``: a ``step-N`` directory beside it that holds
-    exactly this agent's state (saved at this step, nothing changed since); ``final`` is then
-    a relative symbolic link to it (a marker file where links cannot be made), not a copy."""
+                          same_as: str | Path | None = None, world_state: Any = None) -> Path:
+    """Write ``checkpoints/final`` (with the world's state when given). ``same_as``: a
+    ``step-N`` directory beside it that holds exactly this agent's state (saved at this step,
+    nothing changed since); ``final`` is then a relative symbolic link to it (a marker file
+    where links cannot be made), not a copy."""
     root = Path(checkpoints)
     root.mkdir(parents=True, exist_ok=True)
     final = root / "final"
@@ -678,6 +716,7 @@ def save_final_checkpoint(agent: Any, checkpoints: str | Path, world: str | None
             tmp.write_text(f"{LINK_MARKER} {same.name}\n")
     else:
         save_agent(agent, tmp, world)
+        save_world_state(tmp, world_state)
     if tmp.is_dir() and not tmp.is_symlink():
         _remove(final)                  # rename(2) puts a directory only where none is
     elif final.is_dir() and not final.is_symlink():
