@@ -27,6 +27,7 @@ from .qlap.checkpoint import (
     load_agent,
     save_final_checkpoint,
     save_step_checkpoint,
+    world_state_of,
 )
 from .qlap.perception import InvalidObservation
 
@@ -69,9 +70,10 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     ``step`` raises stops the run: the outputs of the steps done are written, then
     :class:`WorldFailed` is raised.
 
-    Checkpoints carry the world's state (``world.json``, :func:`world_state`). ``restored``:
-    the world was set to a checkpoint's state (``restore_world``) and continues from it instead
-    of ``reset(seed)``: with the checkpoint's agent the run is then the uninterrupted one's.
+    Checkpoints carry the world's state (``world.json``,
+    :func:`~.qlap.checkpoint.world_state_of`). ``restored``: the world was set to a
+    checkpoint's state (``restore_world``) and continues from it instead of ``reset(seed)``:
+    with the checkpoint's agent the run is then the uninterrupted one's.
     """
     params = params_for_world(world, params)
     agent = agent or Agent(world.variables, params, seed=seed)
@@ -107,7 +109,7 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
                 metrics.after_step(t + 1, agent)
             if ckpts is not None and (t + 1) % checkpoint_every == 0:
                 last_saved = (t, save_step_checkpoint(agent, ckpts, t + 1, world_spec,
-                                                      keep_checkpoints, world_state(world)))
+                                                      keep_checkpoints, world_state_of(world)))
         wall = time.perf_counter() - t0
         if metrics is not None:
             metrics.finish(start + done, agent)
@@ -123,22 +125,10 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
         atomic_write_json(out / "summary.json", summary)
         same = last_saved[1] if last_saved[0] == start + done - 1 else None
         save_final_checkpoint(agent, out / "checkpoints", world_spec, same_as=same,
-                              world_state=world_state(world) if failed is None else None)
+                              world_state=world_state_of(world) if failed is None else None)
     if failed is not None:
         raise failed
     return agent, summary
-
-
-def world_state(world: Any) -> dict[str, Any] | None:
-    """``world.get_state()`` for a checkpoint, or None for a world that cannot save one (a
-    plug-in world without the method, a replayed world whose caller moved things)."""
-    get = getattr(world, "get_state", None)
-    if get is None:
-        return None
-    try:
-        return get()
-    except (ValueError, NotImplementedError):
-        return None
 
 
 def knowledge_json(agent: Agent) -> str:

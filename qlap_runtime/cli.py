@@ -562,7 +562,12 @@ def _restore_world(world, checkpoint: Path) -> bool:
     """Put ``world`` in the state a checkpoint saved (``world.json``): True when it holds one;
     a checkpoint without one (written before world states were saved, or by a world that
     cannot save its state) leaves the world to ``reset(seed)``, which ``qlap`` says."""
-    from .qlap.checkpoint import load_world_state, resolve_checkpoint, restore_world
+    from .qlap.checkpoint import (
+        load_world_state,
+        resolve_checkpoint,
+        restore_world,
+        statistics_missing,
+    )
 
     state = load_world_state(checkpoint)
     if state is None:
@@ -571,6 +576,10 @@ def _restore_world(world, checkpoint: Path) -> bool:
               file=sys.stderr)
         return False
     restore_world(world, state, resolve_checkpoint(checkpoint) / "world.json")
+    if statistics_missing(checkpoint):
+        print("qlap run: --resume: the checkpoint's learner has no pair statistics (an actor "
+              "placement's checkpoint without its stats part); the run will differ from an "
+              "uninterrupted one", file=sys.stderr)
     return True
 
 

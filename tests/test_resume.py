@@ -1,6 +1,6 @@
 """Exact resume (issue 13): a checkpoint carries the world's state (``world.json``), so that
 ``--resume`` of the checkpoint at step S run to T gives the uninterrupted run's knowledge.json
-byte for byte (docs/decisions.md 47)."""
+byte for byte (docs/decisions.md 39)."""
 
 from __future__ import annotations
 

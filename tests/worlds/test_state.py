@@ -1,4 +1,4 @@
-"""``World.get_state``/``set_state``: the exact resume of every world (docs/decisions.md 47).
+"""``World.get_state``/``set_state``: the exact resume of every world (docs/decisions.md 39).
 
 MuJoCo's core saves ``mj_getState`` plus what the world changes in its model; pong its few
 numbers; core2d (pymunk) and the Gymnasium worlds replay the motor commands since ``reset``.
