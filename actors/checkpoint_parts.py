@@ -47,9 +47,18 @@ def _writes(ctx: RunContext) -> bool:
 def part_dir(ctx: RunContext, t: int) -> Path | None:
     """``checkpoints/step-(t+1)`` when the executor takes a periodic checkpoint after step t,
     else None."""
-    if not _writes(ctx) or (t + 1) % ctx.checkpoint_every:
+    if (t + 1) % ctx.checkpoint_every or not _writes(ctx):
         return None
-    return Path(ctx.out) / "checkpoints" / step_name(t + 1)  # type: ignore[arg-type]
+    directory = Path(ctx.out) / "checkpoints" / step_name(t + 1)  # type: ignore[arg-type]
+    return None if _pruned(directory) else directory
+
+
+def _pruned(directory: Path) -> bool:
+    """A checkpoint the executor's retention already removed (a lagging or restarted actor
+    writing a part late): a newer ``step-N`` exists and this one does not."""
+    if directory.exists():
+        return False
+    return any(d.name > directory.name for d in directory.parent.glob("step-*"))
 
 
 def final_dir(ctx: RunContext) -> Path | None:
