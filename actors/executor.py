@@ -172,7 +172,7 @@ async def run(session, ctx: RunContext) -> dict:
             if not commands.rc.message.startswith("run ended"):
                 commands.rc.message = f"finished {steps_done} steps"
             display.publish(agent, deltas, commands.rc, force=True)
-        except trio.Cancelled:
+        except BaseException:                   # cancelled (maybe in a group) by a stall
             keep_on_stall(ctx, agent)           # a stalled run keeps what was learned
             raise
         finally:

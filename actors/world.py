@@ -234,7 +234,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
             # actors) and pauses excluded: what the benchmarks compare between placements.
             stats["loop_s"] = round(time.perf_counter() - loop_t0 - paused_s, 3)
             stats["paused_s"] = round(paused_s, 3)
-    except trio.Cancelled:
+    except BaseException:                       # cancelled (maybe in a group) by a stall
         keep_on_stall(ctx, world=world)         # a stalled run keeps the world's state
         raise
     finally:
