@@ -25,7 +25,6 @@ from typing import Any
 from qlap_runtime.qlap.checkpoint import (
     STATS_PART,
     WORLD_FILE,
-    resolve_checkpoint,
     save_statistics,
     save_world_state,
     step_name,
@@ -91,8 +90,7 @@ def place_final_parts(checkpoints: Path) -> None:
         for name in (WORLD_FILE, f"{STATS_PART}.npz", f"{STATS_PART}.json"):
             if (parts / name).is_file():
                 (parts / name).replace(final / name)
-    elif final.exists():
-        resolve_checkpoint(final)            # a link or a marker: its step-N has the parts
+    # else: a link or a marker, whose step-N has the parts, or no final (the run failed)
     shutil.rmtree(parts, ignore_errors=True)
 
 
