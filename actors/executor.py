@@ -42,6 +42,7 @@ from qlap_runtime.qlap.checkpoint import (
 from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.watchdog import slot_of
 
+from .checkpoint_parts import keep_on_stall
 from .common import (
     ControlError,
     Controls,
@@ -132,8 +133,11 @@ async def run(session, ctx: RunContext) -> dict:
                         # The learner's percept (not the message's): a landmark applied at
                         # this step renumbers its q in place, as in the synchronous loop, so
                         # the decision reads the current values with the new landmarks.
+                        # Waited for before observing: a cancel (a stall) leaves the agent at
+                        # a step boundary, which keep_on_stall saves.
+                        due = await deltas.due_now(t, ctx.realtime)
                         p = agent.learner.observe_percept(percept_from_qstate(msg, agent.table))
-                        for d in await deltas.due_now(t, ctx.realtime):
+                        for d in due:
                             agent.learner.apply_delta(d)
                         motor = Motor(t, dict(agent.decide(p)))
                     if batch_kinds(ctx.params, t + 1) and t + 1 < ctx.start + ctx.steps:
@@ -168,6 +172,9 @@ async def run(session, ctx: RunContext) -> dict:
             if not commands.rc.message.startswith("run ended"):
                 commands.rc.message = f"finished {steps_done} steps"
             display.publish(agent, deltas, commands.rc, force=True)
+        except BaseException:                   # cancelled (maybe in a group) by a stall
+            keep_on_stall(ctx, agent)           # a stalled run keeps what was learned
+            raise
         finally:
             deltas.close()
             if metrics is not None:

@@ -27,6 +27,7 @@ from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.watchdog import Slot, slot_of
 
+from .checkpoint_parts import final_dir, part_dir, save_statistics_part
 from .common import (
     Controls,
     DeltaInbox,
@@ -118,6 +119,8 @@ async def run(session, ctx: RunContext, role: str) -> dict:
                         for d in await deltas.due_now(t, ctx.realtime):
                             learner.apply_delta(d)
                     slot.done(t)
+                    if role == "contingency":       # the executor's checkpoint's part
+                        save_statistics_part(part_dir(ctx, t), learner)
                     # A snapshot at t must not miss a batch computed at or before t: with one
                     # in flight it waits for the first step after its delta was published.
                     snapshot_pending = snapshot_pending or snapshot_due(ctx, t)
@@ -129,6 +132,8 @@ async def run(session, ctx: RunContext, role: str) -> dict:
                             ctx, role, t, deltas, lambda d: save_learner(learner, d),
                             own=[m.delta for m in out.pending(since)]))
             slot.finished()
+            if role == "contingency":
+                save_statistics_part(final_dir(ctx), learner)
         finally:
             deltas.close()
     return {"rejected": counter.snapshot().total, "waits": deltas.book.waits,

@@ -3,7 +3,8 @@
 Publishes ``sense(t)`` — the world's observation at t plus the motor values being applied
 (those of ``motor(t − 1)``) — then waits for ``motor(t)``, applies it and steps. It keeps its
 recent ``sense`` messages in a replay log for a perception actor restarted from a snapshot.
-The world itself is not restartable: its physics state is not snapshotted (docs/runtime.md).
+The world itself is not restartable (docs/runtime.md); its state goes into the run's
+checkpoints (``world.json``, :mod:`.checkpoint_parts`) for an exact ``--resume``.
 
 A value the agent would reject (NaN, ±inf, |x| > ``MAX_ABS_VALUE``) is counted here
 (``rejected_senses``) and published in a form the bus can carry — a NaN left out (the agent
@@ -41,6 +42,7 @@ from qlap_runtime.bus.schema import Control, Sense, WorldView
 from qlap_runtime.qlap.perception import MAX_ABS_VALUE
 from qlap_runtime.runtime.watchdog import slot_of
 
+from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
 from .common import ControlError, Controls, RunContext, RunControl, StepInbox
 from .rules import motor_rule
 
@@ -219,7 +221,10 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 rc.stepped()
                 slot.done(t)
                 last = t
+                save_world_part(part_dir(ctx, t), world)   # the executor's checkpoint's part
             slot.finished()
+            if failed is None:
+                save_world_part(final_dir(ctx), world)
             if rc.quit:
                 # The end marker: every other actor ends after step `last` (the last one whose
                 # sense was published and whose motor was applied) and writes its outputs.
@@ -229,6 +234,9 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
             # actors) and pauses excluded: what the benchmarks compare between placements.
             stats["loop_s"] = round(time.perf_counter() - loop_t0 - paused_s, 3)
             stats["paused_s"] = round(paused_s, 3)
+    except BaseException:                       # cancelled (maybe in a group) by a stall
+        keep_on_stall(ctx, world=world)         # a stalled run keeps the world's state
+        raise
     finally:
         world.close()
     stats["rejected"] = counter.snapshot().total

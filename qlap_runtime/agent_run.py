@@ -27,6 +27,7 @@ from .qlap.checkpoint import (
     load_agent,
     save_final_checkpoint,
     save_step_checkpoint,
+    world_state_of,
 )
 from .qlap.perception import InvalidObservation
 
@@ -54,8 +55,8 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
               params: Params | None = None, progress: ProgressFn | None = None,
               checkpoint_every: int = 10_000, agent: Agent | None = None,
               keep_checkpoints: int | None = None, metrics_every: int = METRICS_EVERY,
-              on_metrics: Callable[[dict[str, Any]], None] | None = None
-              ) -> tuple[Agent, dict[str, Any]]:
+              on_metrics: Callable[[dict[str, Any]], None] | None = None,
+              restored: bool = False) -> tuple[Agent, dict[str, Any]]:
     """Run the agent autonomously in ``world`` for ``steps`` steps.
 
     With ``out``: ``checkpoints/step-NNNNNNN`` every ``checkpoint_every`` steps (the newest
@@ -68,10 +69,15 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     summary, and the agent keeps its previous motor command; the run goes on. A world whose
     ``step`` raises stops the run: the outputs of the steps done are written, then
     :class:`WorldFailed` is raised.
+
+    Checkpoints carry the world's state (``world.json``,
+    :func:`~.qlap.checkpoint.world_state_of`). ``restored``: the world was set to a
+    checkpoint's state (``restore_world``) and continues from it instead of ``reset(seed)``:
+    with the checkpoint's agent the run is then the uninterrupted one's.
     """
     params = params_for_world(world, params)
     agent = agent or Agent(world.variables, params, seed=seed)
-    obs = world.reset(seed=seed)
+    obs = world.observe() if restored else world.reset(seed=seed)
     motor = dict(agent.motor)
     rejected: list[str] = []
     world_spec = getattr(world, "spec", None) or getattr(world, "name", None)
@@ -103,7 +109,7 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
                 metrics.after_step(t + 1, agent)
             if ckpts is not None and (t + 1) % checkpoint_every == 0:
                 last_saved = (t, save_step_checkpoint(agent, ckpts, t + 1, world_spec,
-                                                      keep_checkpoints))
+                                                      keep_checkpoints, world_state_of(world)))
         wall = time.perf_counter() - t0
         if metrics is not None:
             metrics.finish(start + done, agent)
@@ -118,7 +124,8 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
         atomic_write_json(out / "knowledge.json", agent.knowledge())
         atomic_write_json(out / "summary.json", summary)
         same = last_saved[1] if last_saved[0] == start + done - 1 else None
-        save_final_checkpoint(agent, out / "checkpoints", world_spec, same_as=same)
+        save_final_checkpoint(agent, out / "checkpoints", world_spec, same_as=same,
+                              world_state=world_state_of(world) if failed is None else None)
     if failed is not None:
         raise failed
     return agent, summary

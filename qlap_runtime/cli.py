@@ -490,6 +490,7 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
         world.close()
         return 2
     agent = None
+    restored = False
     if args.resume is not None:
         clash = resume_clash(args.resume, args.out)
         if clash is not None:
@@ -498,6 +499,7 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
             return 2
         try:
             agent = load_agent(args.resume)
+            restored = _restore_world(world, args.resume)
         except CheckpointError as exc:
             print(f"qlap run: --resume: {exc}", file=sys.stderr)
             world.close()
@@ -536,7 +538,8 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
     try:
         agent, summary = run_agent(world, args.steps, args.seed, out, params=params,
                                    progress=progress_cb, agent=agent,
-                                   keep_checkpoints=args.keep_checkpoints, on_metrics=plain)
+                                   keep_checkpoints=args.keep_checkpoints, on_metrics=plain,
+                                   restored=restored)
     finally:
         if bar is not None:
             bar.stop()
@@ -553,6 +556,31 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
     print(format_knowledge(agent.knowledge(), limit=25))
     _print_written(out)
     return 0
+
+
+def _restore_world(world, checkpoint: Path) -> bool:
+    """Put ``world`` in the state a checkpoint saved (``world.json``): True when it holds one;
+    a checkpoint without one (written before world states were saved, or by a world that
+    cannot save its state) leaves the world to ``reset(seed)``, which ``qlap`` says."""
+    from .qlap.checkpoint import (
+        load_world_state,
+        resolve_checkpoint,
+        restore_world,
+        statistics_missing,
+    )
+
+    state = load_world_state(checkpoint)
+    if state is None:
+        print("qlap run: --resume: the checkpoint holds no world state; the world starts "
+              "again from reset(seed), so the run will differ from an uninterrupted one",
+              file=sys.stderr)
+        return False
+    restore_world(world, state, resolve_checkpoint(checkpoint) / "world.json")
+    if statistics_missing(checkpoint):
+        print("qlap run: --resume: the checkpoint's learner has no pair statistics (an actor "
+              "placement's checkpoint without its stats part); the run will differ from an "
+              "uninterrupted one", file=sys.stderr)
+    return True
 
 
 def _print_written(out: Path) -> None:

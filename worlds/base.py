@@ -23,9 +23,12 @@ by ``reset(seed)``: the same seed and the same motor sequence give identical obs
 from __future__ import annotations
 
 import abc
+import base64
 import dataclasses
 import enum
 import math
+import zlib
+from array import array
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -35,6 +38,7 @@ import numpy as np
 
 __all__ = [
     "DOT_BAND",
+    "STATE_FORMAT",
     "Goal",
     "Task",
     "VarKind",
@@ -49,6 +53,9 @@ __all__ = [
 #: [−0.05, 0.05] on every change variable; the reference's derivatives are per second, Tables
 #: 8.7–8.10). Tasks use it to judge ".dot" goals.
 DOT_BAND = 0.05
+
+STATE_FORMAT = "qlap-world-state"
+"""The ``format`` of :meth:`World.get_state`'s dictionary (version 1)."""
 
 
 class VarKind(enum.StrEnum):
@@ -213,6 +220,9 @@ class World(abc.ABC):
         )
         self._withheld: frozenset[str] = frozenset()
         self._jumped = False
+        self._in_physics = False
+        self._replay_start: dict[str, Any] | None = None
+        self._replay_motors = array("d")
         self.discontinuity = True
         self.step_count = 0
         self.observation = {}
@@ -244,8 +254,14 @@ class World(abc.ABC):
         """
         self.rng = np.random.default_rng(seed)
         self.step_count = 0
-        obs = self._reset()
-        return self.restart_from(obs)
+        self._replay_start = dict(self.rng.bit_generator.state) if self.replayable else None
+        self._replay_motors = array("d")
+        self._in_physics = True
+        try:
+            obs = self._reset()
+        finally:
+            self._in_physics = False
+        return self._begin_stream(obs)
 
     def step(self, motor: Mapping[str, float]) -> dict[str, float]:
         """Apply the motor values for one agent step (``substeps`` physics steps).
@@ -256,8 +272,18 @@ class World(abc.ABC):
         whether it is continuous with the previous one.
         """
         values = self._motor_values(motor)
+        return self._advance(values)
+
+    def _advance(self, values: list[float]) -> dict[str, float]:
+        """One step with validated motor values in table order (``step`` and replay)."""
         self.step_count += 1
-        obs = self._step(values)
+        if self._replay_start is not None:
+            self._replay_motors.extend(values)
+        self._in_physics = True
+        try:
+            obs = self._step(values)
+        finally:
+            self._in_physics = False
         self.previous_observation = self.observation
         self.observation = obs
         self.discontinuity = self._jumped
@@ -272,11 +298,20 @@ class World(abc.ABC):
         available now. ``reset()`` ends with it; a task's ``setup`` that moves things after
         ``reset()`` calls it with the observation of the state it set up.
         """
+        self._replay_start = None           # a caller set this state up: no longer replayable
+        return self._begin_stream(obs)
+
+    def _begin_stream(self, obs: dict[str, float]) -> dict[str, float]:
         self.previous_observation = obs
         self.observation = obs
         self.discontinuity = True
         self._jumped = False
         return self._publish(obs)
+
+    def observe(self) -> dict[str, float]:
+        """The latest observation as the agent sees it (only the variables available now): what
+        ``reset``, ``step`` or ``set_state`` returned last."""
+        return self._publish(self.observation)
 
     def change(self, name: str) -> str | None:
         """The direction of change of magnitude ``name`` at the latest step, as the agent's
@@ -313,6 +348,126 @@ class World(abc.ABC):
         """The next observation will not be continuous with the latest one (a teleport during
         ``_step``, or between steps by a caller placing things)."""
         self._jumped = True
+        if not getattr(self, "_in_physics", False):
+            self._replay_start = None       # a caller moved things: no longer replayable
+
+    # --- saving and restoring the state (exact resume) ------------------------------------
+
+    replayable: ClassVar[bool] = True
+    """True: :meth:`get_state` records the generator's state at ``reset`` and every motor
+    command since, and :meth:`set_state` replays them (exact for any deterministic world, at
+    the cost of re-simulating). A world that saves its physics directly (MuJoCo's
+    ``mj_getState``, a pure-Python game) sets False and implements :meth:`_get_state` and
+    :meth:`_set_state`."""
+
+    def get_state(self) -> dict[str, Any]:
+        """The world's whole state as a JSON-able dict (no pickle): :meth:`set_state` on a world
+        made with the same spec continues exactly as this one would (same observations and
+        discontinuity flags for the same motors).
+
+        Raises ValueError when the state cannot be saved: a replayed world whose caller moved
+        things since ``reset`` (a task set-up), or a world that keeps no state."""
+        state: dict[str, Any] = {
+            "format": STATE_FORMAT, "version": 1, "world": self.name,
+            "step_count": self.step_count, "observation": dict(self.observation),
+            "previous_observation": dict(self.previous_observation),
+            "discontinuity": bool(self.discontinuity), "jumped": bool(self._jumped),
+            "rng": self.rng.bit_generator.state,
+        }
+        if self.replayable:
+            if self._replay_start is None:
+                raise ValueError(f"{self.name}: its state cannot be saved: things were placed "
+                                 "by a caller since reset (only a run from reset replays)")
+            raw = np.asarray(self._replay_motors, dtype="<f8").tobytes()
+            state["replay"] = {"rng": self._replay_start, "n_motors": len(self._motor_names),
+                               "motors": base64.b64encode(zlib.compress(raw, 6)).decode()}
+        else:
+            state["physics"] = self._get_state()
+        return state
+
+    def set_state(self, state: Mapping[str, Any]) -> dict[str, float]:
+        """Restore a state from :meth:`get_state` (of a world made with the same spec) and
+        return the observation the agent sees now, as ``reset`` does.
+
+        Raises ValueError (KeyError, TypeError) naming what is wrong for a state of another
+        world or a corrupt one; a replay whose end does not match the saved observation is
+        an error too."""
+        if not isinstance(state, Mapping) or state.get("format") != STATE_FORMAT:
+            raise ValueError(f"{self.name}: not a world state (format "
+                             f"{state.get('format') if isinstance(state, Mapping) else state!r})")
+        if state.get("version") != 1:
+            raise ValueError(f"{self.name}: world state version {state.get('version')!r} is "
+                             "not supported (this build reads version 1)")
+        if state.get("world") != self.name:
+            raise ValueError(f"the world state is of {state.get('world')!r}, not {self.name!r}")
+        observation = {str(k): float(v) for k, v in dict(state["observation"]).items()}
+        previous = {str(k): float(v) for k, v in dict(state["previous_observation"]).items()}
+        step_count = int(state["step_count"])
+        if step_count < 0:
+            raise ValueError(f"{self.name}: world state step_count {step_count} is negative")
+        if self.replayable:
+            self._replay(state.get("replay"), step_count)
+            for what, got, saved in (("observation", self.observation, observation),
+                                     ("generator", self.rng.bit_generator.state,
+                                      state["rng"])):
+                if got != saved:
+                    raise ValueError(f"{self.name}: the replay of {step_count} steps does not "
+                                     f"reach the saved {what} (is the world deterministic?)")
+        else:
+            if "physics" not in state:
+                raise ValueError(f"{self.name}: the world state has no 'physics'")
+            rng = np.random.default_rng()
+            rng.bit_generator.state = dict(state["rng"])
+            self.rng = rng
+            self._set_state(state["physics"])
+            self._replay_start = None
+        self.step_count = step_count
+        self.observation, self.previous_observation = observation, previous
+        self.discontinuity = bool(state["discontinuity"])
+        self._jumped = bool(state["jumped"])
+        return self._publish(observation)
+
+    def _replay(self, replay: Any, step_count: int) -> None:
+        """Reset to the saved generator state and apply the saved motor commands again."""
+        if not isinstance(replay, Mapping):
+            raise ValueError(f"{self.name}: the world state has no 'replay'")
+        n = len(self._motor_names)
+        if replay.get("n_motors") != n:
+            raise ValueError(f"{self.name}: the replay has {replay.get('n_motors')!r} motors "
+                             f"per step, the world {n}")
+        try:
+            raw = zlib.decompress(base64.b64decode(str(replay["motors"]), validate=True))
+        except (ValueError, zlib.error) as exc:
+            raise ValueError(f"{self.name}: corrupt replay motors ({exc})") from None
+        motors = np.frombuffer(raw, dtype="<f8")
+        if motors.size != n * step_count:
+            raise ValueError(f"{self.name}: the replay holds {motors.size // max(n, 1)} steps, "
+                             f"the state says {step_count}")
+        if not np.isfinite(motors).all():
+            raise ValueError(f"{self.name}: the replay holds non-finite motor values")
+        rng = np.random.default_rng()
+        rng.bit_generator.state = dict(replay["rng"])
+        self.rng = rng
+        self.step_count = 0
+        self._replay_start = dict(rng.bit_generator.state)
+        self._replay_motors = array("d")
+        self._in_physics = True
+        try:
+            obs = self._reset()
+        finally:
+            self._in_physics = False
+        self._begin_stream(obs)
+        for row in motors.reshape(step_count, n).tolist():
+            self._advance(self._motor_values(dict(zip(self._motor_names, row, strict=True))))
+
+    def _get_state(self) -> Any:
+        """The physics and bookkeeping of a world that is not ``replayable`` (JSON-able)."""
+        raise ValueError(f"{self.name}: this world keeps no state (set replayable or "
+                         "implement _get_state/_set_state)")
+
+    def _set_state(self, physics: Any) -> None:
+        """Restore what :meth:`_get_state` returned."""
+        raise ValueError(f"{self.name}: this world keeps no state")
 
     # --- internals ------------------------------------------------------------------------
 

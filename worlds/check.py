@@ -7,6 +7,7 @@ with a message naming the world and the broken rule.
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from collections.abc import Mapping
 
@@ -158,6 +159,53 @@ def _run(world: World, steps: int, seed: int) -> tuple[list[dict[str, float]], l
     return trace, flags
 
 
+def _check_state(world: World, steps: int, seed: int) -> None:
+    """``get_state``/``set_state`` round-trip through JSON: step ``steps // 2``, save, step the
+    rest; restore, step the same motors again: identical observations and flags."""
+    where = f"world {world.name!r}"
+    rng = np.random.default_rng(seed + 2)
+    world.reset(seed=seed)
+    motor = random_motor(world, rng)
+    hold = {name: 0 for name in motor}
+
+    def next_motor() -> dict[str, float]:
+        fresh = random_motor(world, rng)
+        for name in motor:
+            if hold[name] <= 0:
+                motor[name] = fresh[name]
+                hold[name] = int(rng.integers(0, MAX_HOLD + 1))
+            hold[name] -= 1
+        return dict(motor)
+
+    half = max(1, steps // 2)
+    obs = {}
+    for _ in range(half):
+        obs = world.step(next_motor())
+    try:
+        text = json.dumps(world.get_state(), allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise AssertionError(f"{where}: get_state() is not JSON-able: {exc}") from None
+    saved_flag = world.discontinuity
+    motors = [next_motor() for _ in range(max(1, steps - half))]
+    first = [(world.step(m), world.discontinuity) for m in motors]
+    restored = world.set_state(json.loads(text))
+    _require(restored == obs and world.discontinuity == saved_flag
+             and world.step_count == half,
+             f"{where}: set_state() does not give back the observation, flag and step count "
+             f"saved at step {half}")
+    again = [(world.step(m), world.discontinuity) for m in motors]
+    for t, (a, b) in enumerate(zip(first, again, strict=True), start=half + 1):
+        _require(a == b, f"{where}: after set_state the run differs at step {t}: "
+                         f"{ {k: (a[0][k], b[0].get(k)) for k in a[0] if a[0][k] != b[0].get(k)} }"
+                         f" (discontinuity {a[1]} vs {b[1]})")
+    try:
+        world.set_state({**json.loads(text), "world": "no such world"})
+    except ValueError:
+        pass
+    else:
+        raise AssertionError(f"{where}: set_state() accepted the state of another world")
+
+
 def _check_jumps(world: World, trace: list[dict[str, float]], flags: list[bool]) -> None:
     """Large changes of a magnitude happen only on steps marked as discontinuities."""
     magnitudes = [v.name for v in world.variables if v.kind is VarKind.MAGNITUDE]
@@ -203,10 +251,12 @@ def check_world(world: World, steps: int = 300, seed: int = 0) -> None:
     ``JUMP_SCALE_FRACTION`` of its largest magnitude); that the run,
     discontinuity flags included, is identical when repeated with the same seed; that no sensed
     variable stays constant over the run, except the world's declared ``constant_variables``
-    (which must be constant) and ``rare_variables`` (rare events); and that bad motor input
-    raises ValueError.
+    (which must be constant) and ``rare_variables`` (rare events); that ``get_state`` is
+    JSON-able and ``set_state`` continues exactly (same observations and flags for the same
+    motors); and that bad motor input raises ValueError.
     """
     _check_spec(world)
+    _check_state(world, steps, seed)
     first, first_flags = _run(world, steps, seed)
     second, second_flags = _run(world, steps, seed)
     _require(

@@ -60,7 +60,6 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     ``extra`` coroutines ``task(session, ctx)`` run beside the actors (tests, tools);
     ``watchers`` coroutines ``task(session, ctx, stop)`` (e.g. the progress bar) run until
     the actors are done and ``stop`` is set."""
-    from ..bus.recorder import record as record_bus
     from ..runtime.watchdog import DEFAULT_STALL_S, Board, Watchdog
 
     results: dict[str, Any] = {}
@@ -71,6 +70,23 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     ctx.board = Board(ACTORS)
     watchdog = Watchdog(ctx.board, float(ctx.extra.get("stall_s", 0) or 0) or DEFAULT_STALL_S)
     t0 = time.perf_counter()
+    try:
+        await _embedded_actors(ctx, listen, auth, record, extra, watchers, watchdog, results)
+    except BaseException:
+        if ctx.board.stalled is not None and ctx.out is not None:
+            from actors.checkpoint_parts import place_final_parts
+
+            place_final_parts(Path(ctx.out) / "checkpoints")   # the world's, into final
+        raise
+    return _finish(ctx, "embedded", results, time.perf_counter() - t0)
+
+
+async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, Any],
+                           record: Path | None, extra: tuple, watchers: tuple, watchdog: Any,
+                           results: dict[str, Any]) -> None:
+    """The body of :func:`run_embedded_async`: the actors' nursery on one session."""
+    from ..bus.recorder import record as record_bus
+
     with zenoh.open(embedded_config(listen, **auth)) as session:
         ready = trio.Event()
         stop = trio.Event()
@@ -93,7 +109,6 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
                 for task in extra:                 # e.g. a test's fuzzer on the same session
                     nursery.start_soon(task, session, ctx)
             stop.set()
-    return _finish(ctx, "embedded", results, time.perf_counter() - t0)
 
 
 def _listen_auth(ctx: Any, listen: tuple[str, ...]) -> dict[str, Any]:
@@ -412,6 +427,9 @@ def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float,
             summary[key] = world[key]
     if ctx.out is not None:
         out = Path(ctx.out)
+        from actors.checkpoint_parts import place_final_parts
+
+        place_final_parts(out / "checkpoints")          # world.json and stats of final
         executor = out / "actors" / "executor.json"
         if executor.exists():
             base = json.loads(executor.read_text())

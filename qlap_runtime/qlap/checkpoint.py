@@ -56,6 +56,16 @@ LINK_MARKER = "qlap-checkpoint-link"
 links cannot be made): ``qlap-checkpoint-link step-0250000``."""
 
 
+WORLD_FILE = "world.json"
+"""The world's state in a checkpoint (``World.get_state``), for an exact ``--resume``."""
+STATS_PART = "stats"
+"""``stats.json``/``stats.npz``: the pair and window statistics of DBN search (§4.1,
+Appendix C), written beside an actor placement's checkpoint by the contingency actor: the
+executor's learner is a follower that does not keep them, and :func:`load_learner` puts them
+in, so the checkpoint is the synchronous loop's."""
+STATS_FORMAT = "qlap-learner-stats"
+
+
 class CheckpointError(ValueError):
     """A checkpoint that cannot be read (missing, corrupt, wrong format or version)."""
 
@@ -254,6 +264,8 @@ def learner_state(learner: ModelLearner) -> tuple[dict[str, Any], dict[str, np.n
         "splits": [list(x) for x in learner.splits],
         "reliable_actions": sorted([list(a) for a in learner.reliable_actions]),
     }
+    if learner.follower:                # no pair statistics: see STATS_PART
+        meta["follower"] = True
     return meta, arrays
 
 
@@ -293,9 +305,65 @@ def read_checkpoint(directory: str | Path, name: str = "learner"
     return meta, arrays
 
 
+def save_statistics(learner: ModelLearner, directory: str | Path) -> Path:
+    """Write the learner's pair and window statistics as ``stats.json``/``stats.npz`` (each
+    atomically): the part of a learner an actor placement's follower learner lacks."""
+    directory = Path(directory)
+    pairs_meta, pairs_arrays = learner.pairs.to_state()
+    _write_npz(directory / f"{STATS_PART}.npz", {f"pairs.{k}": v for k, v in pairs_arrays.items()})
+    _write_compact_json(directory / f"{STATS_PART}.json", {
+        "format": STATS_FORMAT, "version": 1, "step": learner.step, "pairs": pairs_meta,
+        "window": learner.window.to_state()})
+    return directory
+
+
+def _merge_statistics(directory: Path, meta: dict[str, Any],
+                      arrays: dict[str, np.ndarray]) -> None:
+    """Put ``stats.json``/``stats.npz`` (when present) into a learner checkpoint read from
+    ``directory``: they replace its pair and window statistics."""
+    jpath, npath = directory / f"{STATS_PART}.json", directory / f"{STATS_PART}.npz"
+    try:
+        stats = json.loads(jpath.read_text())
+    except FileNotFoundError:
+        return
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"{jpath}: corrupt statistics ({exc})") from None
+    if not isinstance(stats, dict) or stats.get("format") != STATS_FORMAT \
+            or stats.get("version") != 1:
+        raise CheckpointError(f"{jpath}: not a {STATS_FORMAT} version 1 file")
+    if stats.get("step") != meta.get("step"):
+        raise CheckpointError(f"{jpath}: statistics of step {stats.get('step')!r}, the "
+                              f"learner's step is {meta.get('step')!r}")
+    try:
+        extra = _read_npz(npath)
+    except FileNotFoundError:
+        raise CheckpointError(f"{npath}: no such checkpoint file") from None
+    except Exception as exc:  # zipfile/np errors on corrupt data
+        raise CheckpointError(f"{npath}: corrupt array file ({exc})") from None
+    for key in [k for k in arrays if k.startswith("pairs.")]:
+        del arrays[key]
+    arrays.update(extra)
+    meta["pairs"], meta["window"] = stats.get("pairs"), stats.get("window")
+    meta.pop("follower", None)
+
+
+def statistics_missing(directory: str | Path) -> bool:
+    """True for a checkpoint whose learner is an actor placement's follower (no pair
+    statistics) with no ``stats`` part beside it: resuming it cannot be exact."""
+    directory = resolve_checkpoint(directory)
+    try:
+        follower = json.loads((directory / "learner.json").read_text()).get("follower", False)
+    except (OSError, ValueError, AttributeError):
+        return False
+    return bool(follower) and not (directory / f"{STATS_PART}.json").exists()
+
+
 def load_learner(directory: str | Path, name: str = "learner") -> ModelLearner:
-    """Rebuild a learner that continues exactly as the saved one would."""
+    """Rebuild a learner that continues exactly as the saved one would (with the ``stats``
+    part of an actor placement's checkpoint put in, :data:`STATS_PART`)."""
     meta, arrays = read_checkpoint(directory, name)
+    if name == "learner":
+        _merge_statistics(resolve_checkpoint(directory), meta, arrays)
     check_learner(meta, arrays, Path(directory) / name)
     try:
         return restore_learner(meta, arrays)
@@ -640,14 +708,59 @@ def prune_checkpoints(checkpoints: str | Path, keep: int | None) -> list[Path]:
     return removed
 
 
+def save_world_state(directory: str | Path, state: Any) -> None:
+    """Write ``world.json`` (a ``World.get_state()``; None writes nothing) atomically."""
+    if state is not None:
+        _write_compact_json(Path(directory) / WORLD_FILE, state)
+
+
+def load_world_state(directory: str | Path) -> dict[str, Any] | None:
+    """The world state a checkpoint holds (None: it has none, e.g. written before world
+    states were saved). A corrupt file raises :class:`CheckpointError` naming it."""
+    path = resolve_checkpoint(directory) / WORLD_FILE
+    try:
+        state = json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise CheckpointError(f"{path}: corrupt world state ({exc})") from None
+    if not isinstance(state, dict) or state.get("format") != "qlap-world-state":
+        raise CheckpointError(f"{path}: not a qlap-world-state file")
+    return state
+
+
+def world_state_of(world: Any) -> dict[str, Any] | None:
+    """``world.get_state()`` for a checkpoint, or None for a world that cannot save one (a
+    plug-in world without the method, a replayed world whose caller moved things)."""
+    get = getattr(world, "get_state", None)
+    if get is None:
+        return None
+    try:
+        return get()
+    except (ValueError, NotImplementedError):
+        return None
+
+
+def restore_world(world: Any, state: dict[str, Any], where: str | Path) -> dict[str, float]:
+    """``world.set_state(state)``, any failure a one-line :class:`CheckpointError` naming
+    ``where``; returns the observation the agent sees now."""
+    try:
+        return world.set_state(state)
+    except (ValueError, KeyError, TypeError, IndexError, AttributeError, OverflowError) as exc:
+        what = f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError) else str(exc)
+        raise CheckpointError(f"{where}: the world state cannot be restored ({what})") from None
+
+
 def save_step_checkpoint(agent: Any, checkpoints: str | Path, step: int,
-                         world: str | None = None, keep: int | None = None) -> Path | None:
-    """The periodic checkpoint ``checkpoints/step-NNNNNNN`` (``step``: steps observed), then
-    the retention of ``keep`` (None: keep all; 0: write none). Returns its path (None with
-    ``keep == 0``)."""
+                         world: str | None = None, keep: int | None = None,
+                         world_state: Any = None) -> Path | None:
+    """The periodic checkpoint ``checkpoints/step-NNNNNNN`` (``step``: steps observed), with
+    the world's state when given, then the retention of ``keep`` (None: keep all; 0: write
+    none). Returns its path (None with ``keep == 0``)."""
     if keep == 0:
         return None
     path = save_agent(agent, Path(checkpoints) / step_name(step), world)
+    save_world_state(path, world_state)
     prune_checkpoints(checkpoints, keep)
     return path
 
@@ -660,10 +773,11 @@ def _remove(path: Path) -> None:
 
 
 def save_final_checkpoint(agent: Any, checkpoints: str | Path, world: str | None = None,
-                          same_as: str | Path | None = None) -> Path:
-    """Write ``checkpoints/final``. ``same_as``: a ``step-N`` directory beside it that holds
-    exactly this agent's state (saved at this step, nothing changed since); ``final`` is then
-    a relative symbolic link to it (a marker file where links cannot be made), not a copy."""
+                          same_as: str | Path | None = None, world_state: Any = None) -> Path:
+    """Write ``checkpoints/final`` (with the world's state when given). ``same_as``: a
+    ``step-N`` directory beside it that holds exactly this agent's state (saved at this step,
+    nothing changed since); ``final`` is then a relative symbolic link to it (a marker file
+    where links cannot be made), not a copy."""
     root = Path(checkpoints)
     root.mkdir(parents=True, exist_ok=True)
     final = root / "final"
@@ -678,6 +792,7 @@ def save_final_checkpoint(agent: Any, checkpoints: str | Path, world: str | None
             tmp.write_text(f"{LINK_MARKER} {same.name}\n")
     else:
         save_agent(agent, tmp, world)
+        save_world_state(tmp, world_state)
     if tmp.is_dir() and not tmp.is_symlink():
         _remove(final)                  # rename(2) puts a directory only where none is
     elif final.is_dir() and not final.is_symlink():

@@ -102,6 +102,9 @@ class Board:
     def __init__(self, names: tuple[str, ...] | list[str],
                  slots: dict[str, Any] | None = None) -> None:
         self.slots = {n: Slot(None if slots is None else slots[n]) for n in names}
+        self.stalled: str | None = None
+        """Set (the one-line reason) when the watchdog stops the run: the actors of an
+        embedded run that are cancelled then keep what was learned (a final checkpoint)."""
 
     def slot(self, name: str) -> Slot:
         return self.slots.setdefault(name, Slot())
@@ -150,4 +153,5 @@ class Watchdog:
             return
         parts = [f"{name} waits for {topic}({step}) at step {at}"
                  for (topic, step, at), name in waits]
-        raise RunStalled(f"run stalled: no progress for {idle:.0f} s; " + "; ".join(parts))
+        self.board.stalled = f"run stalled: no progress for {idle:.0f} s; " + "; ".join(parts)
+        raise RunStalled(self.board.stalled)

@@ -558,6 +558,92 @@ class CoreWorld(World):
             self._randoms = rng.random(self.n_random).tolist()
         return self._observe()
 
+    # --- the state (exact resume) -----------------------------------------------------------
+
+    replayable = False
+    STATE_SIG = mujoco.mjtState.mjSTATE_INTEGRATION
+    """What ``mj_getState`` saves: everything ``mj_step`` reads (time, qpos, qvel, act,
+    controls, applied forces, equality activation, mocap, the warm start)."""
+
+    def _get_state(self) -> dict[str, Any]:
+        """mjData's integration state, the model values this world changes (block widths,
+        the grasp weld's relative pose, the blocks' sliding friction) and the bookkeeping."""
+        m, d = self.model, self.data
+        sig = int(self.STATE_SIG)
+        physics = np.empty(mujoco.mj_stateSize(m, sig))
+        mujoco.mj_getState(m, d, physics, sig)
+        state: dict[str, Any] = {
+            "mj_state": physics.tolist(), "nq": int(m.nq), "nv": int(m.nv),
+            "weld": m.eq_data[self._eq_grasp, 3:10].tolist(),
+            "frictionloss": m.dof_frictionloss.tolist(),
+            "width": self.width, "grasped": self.grasped, "bang": self.bang,
+            "touching_blocks": self.touching_blocks, "block_replaced": self.block_replaced,
+            "block_out_of_reach": self.block_out_of_reach,
+            "pending_replace": self._pending_replace,
+            "out_of_reach_steps": self._out_of_reach_steps, "last_hz": self._last_hz,
+            "randoms": list(self._randoms),
+        }
+        if self.secondary:
+            state["width2"] = self.width2
+        if self.balls is not None:
+            state["balls"] = {"pos": [list(p) for p in self.balls.pos],
+                              "vel": [list(v) for v in self.balls.vel],
+                              "restitution": self.balls.restitution}
+        return state
+
+    def _set_state(self, physics: Any) -> None:
+        m, d = self.model, self.data
+        sig = int(self.STATE_SIG)
+        values = np.asarray(physics["mj_state"], dtype=float)
+        size = mujoco.mj_stateSize(m, sig)
+        if values.shape != (size,) or (physics["nq"], physics["nv"]) != (m.nq, m.nv):
+            raise ValueError(f"{self.name}: mj_state holds {values.size} values for nq "
+                             f"{physics['nq']}, nv {physics['nv']}; this model needs {size} "
+                             f"(nq {m.nq}, nv {m.nv})")
+        weld = np.asarray(physics["weld"], dtype=float)
+        friction = np.asarray(physics["frictionloss"], dtype=float)
+        if weld.shape != (7,) or friction.shape != m.dof_frictionloss.shape:
+            raise ValueError(f"{self.name}: weld {weld.shape} or frictionloss "
+                             f"{friction.shape} of the wrong shape")
+        for name, array_ in (("mj_state", values), ("weld", weld), ("frictionloss", friction)):
+            if not np.isfinite(array_).all():
+                raise ValueError(f"{self.name}: {name} holds non-finite values")
+        width = float(physics["width"])
+        if not WIDTH[0] <= width <= WIDTH[1]:
+            raise ValueError(f"{self.name}: block width {width} outside {WIDTH}")
+        randoms = [float(r) for r in physics["randoms"]]
+        if len(randoms) != self.n_random:
+            raise ValueError(f"{self.name}: {len(randoms)} random values, expected "
+                             f"{self.n_random}")
+        balls = physics.get("balls")
+        if (balls is None) != (self.balls is None):
+            raise ValueError(f"{self.name}: floating balls in the state do not match the world")
+        self.width = width
+        self._set_width(self._g_block, self._g_foot, width)
+        if self.secondary:
+            self.width2 = float(physics["width2"])
+            self._set_width(self._g_block2, self._g_foot2, self.width2)
+        m.eq_data[self._eq_grasp, 3:10] = weld
+        m.dof_frictionloss[:] = friction
+        mujoco.mj_setState(m, d, values, sig)
+        mujoco.mj_forward(m, d)
+        self.grasped, self.bang = bool(physics["grasped"]), bool(physics["bang"])
+        self.touching_blocks = bool(physics["touching_blocks"])
+        self.block_replaced = bool(physics["block_replaced"])
+        self.block_out_of_reach = bool(physics["block_out_of_reach"])
+        self._pending_replace = bool(physics["pending_replace"])
+        self._out_of_reach_steps = int(physics["out_of_reach_steps"])
+        self._last_hz = float(physics["last_hz"])
+        self._randoms = randoms
+        if self.balls is not None:
+            pos = [[float(v) for v in p] for p in balls["pos"]]
+            vel = [[float(v) for v in p] for p in balls["vel"]]
+            if len(pos) != self.balls.n or len(vel) != self.balls.n \
+                    or any(len(p) != 3 for p in pos + vel):
+                raise ValueError(f"{self.name}: floating balls of the wrong shape")
+            self.balls.pos, self.balls.vel = pos, vel
+            self.balls.restitution = float(balls["restitution"])
+
     def _hard_stops(self) -> None:
         """The arm's joint limits are hard stops: a hand that went past one (MuJoCo's limits are
         soft, and spring back over several steps) is put on it, its outward speed removed. So the

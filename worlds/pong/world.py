@@ -144,6 +144,24 @@ class PongWorld(World):
         self.ball, self.ball_v = [x, y], [vx, vy]
         return self._observe()
 
+    replayable = False
+
+    def _get_state(self) -> dict[str, Any]:
+        """Paddles, ball and the volley bookkeeping (the generator is saved by the base)."""
+        return {"paddle_y": self.paddle_y, "ball": list(self.ball), "ball_v": list(self.ball_v),
+                "hit": self.hit, "missed": self.missed, "volleys": self.volleys,
+                "random_paddles": self.random_paddles}
+
+    def _set_state(self, physics: Any) -> None:
+        ball = [float(v) for v in physics["ball"]]
+        ball_v = [float(v) for v in physics["ball_v"]]
+        if len(ball) != 2 or len(ball_v) != 2:
+            raise ValueError(f"pong: ball {ball} and velocity {ball_v} need 2 values each")
+        self.paddle_y, self.ball, self.ball_v = float(physics["paddle_y"]), ball, ball_v
+        self.hit, self.missed = bool(physics["hit"]), bool(physics["missed"])
+        self.volleys = int(physics["volleys"])
+        self.random_paddles = bool(physics["random_paddles"])
+
     def _observe(self) -> dict[str, float]:
         x, y = self.ball
         p = self.paddle_y

@@ -1,0 +1,114 @@
+"""The parts of an actor placement's checkpoints that the executor does not hold.
+
+The executor writes each checkpoint (``agent.json``, its follower learner), but two things a
+checkpoint needs for an exact ``--resume`` live in other actors (docs/decisions.md 41): the
+world's state (the world actor, ``world.json``) and the pair and window statistics of DBN
+search (the contingency actor's learner, ``stats.json``/``stats.npz``;
+:func:`~qlap_runtime.qlap.checkpoint.load_learner` puts them into the follower learner). Each
+actor writes its part into ``checkpoints/step-N/`` at the same step as the executor (after
+step N − 1, in lockstep), each file atomically. The parts of the final state go to
+``checkpoints/.final-parts/`` and the launcher moves them into ``final`` once every actor has
+ended (:func:`place_final_parts`); a ``final`` that links to ``step-N`` has them already.
+
+A run the watchdog stops (an embedded run's actors are then cancelled) keeps what was learned:
+the executor writes ``knowledge.json`` and ``checkpoints/final`` of its last complete step and
+the world its state (:func:`keep_on_stall`); the contingency actor's statistics, of another
+step, are not written, so such a checkpoint resumes without its pair statistics.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+from qlap_runtime.qlap.checkpoint import (
+    STATS_PART,
+    WORLD_FILE,
+    save_statistics,
+    save_world_state,
+    step_name,
+    world_state_of,
+)
+
+from .common import RunContext
+
+FINAL_PARTS = ".final-parts"
+
+
+def _writes(ctx: RunContext) -> bool:
+    """Checkpoints with parts: outputs, lockstep (realtime states depend on timing), and a
+    retention that keeps some."""
+    keep = ctx.extra.get("keep_checkpoints")
+    return ctx.out is not None and not ctx.realtime and (keep is None or int(keep) != 0)
+
+
+def part_dir(ctx: RunContext, t: int) -> Path | None:
+    """``checkpoints/step-(t+1)`` when the executor takes a periodic checkpoint after step t,
+    else None."""
+    if (t + 1) % ctx.checkpoint_every or not _writes(ctx):
+        return None
+    directory = Path(ctx.out) / "checkpoints" / step_name(t + 1)  # type: ignore[arg-type]
+    return None if _pruned(directory) else directory
+
+
+def _pruned(directory: Path) -> bool:
+    """A checkpoint the executor's retention already removed (a lagging or restarted actor
+    writing a part late): a newer ``step-N`` exists and this one does not."""
+    if directory.exists():
+        return False
+    return any(d.name > directory.name for d in directory.parent.glob("step-*"))
+
+
+def final_dir(ctx: RunContext) -> Path | None:
+    """Where an actor puts its part of the final checkpoint (None: no outputs)."""
+    if not _writes(ctx):
+        return None
+    return Path(ctx.out) / "checkpoints" / FINAL_PARTS  # type: ignore[arg-type]
+
+
+def save_world_part(directory: Path | None, world: Any) -> None:
+    """The world actor's part: ``world.json`` (nothing for a world that cannot save it)."""
+    if directory is not None:
+        save_world_state(directory, world_state_of(world))
+
+
+def save_statistics_part(directory: Path | None, learner: Any) -> None:
+    """The contingency actor's part: the pair and window statistics."""
+    if directory is not None:
+        save_statistics(learner, directory)
+
+
+def place_final_parts(checkpoints: Path) -> None:
+    """Move the final parts into ``checkpoints/final`` when it is a directory of its own (a
+    ``final`` linked to ``step-N`` has that checkpoint's parts), then remove them."""
+    parts = Path(checkpoints) / FINAL_PARTS
+    if not parts.is_dir():
+        return
+    final = Path(checkpoints) / "final"
+    if final.is_dir() and not final.is_symlink() and (final / "agent.json").is_file():
+        for name in (WORLD_FILE, f"{STATS_PART}.npz", f"{STATS_PART}.json"):
+            if (parts / name).is_file():
+                (parts / name).replace(final / name)
+    # else: a link or a marker, whose step-N has the parts, or no final (the run failed)
+    shutil.rmtree(parts, ignore_errors=True)
+
+
+def stalled(ctx: RunContext) -> bool:
+    """Whether the watchdog stopped this run (``ctx.board.stalled``)."""
+    return getattr(getattr(ctx, "board", None), "stalled", None) is not None
+
+
+def keep_on_stall(ctx: RunContext, agent: Any = None, world: Any = None) -> None:
+    """Called by a cancelled actor: when the watchdog stopped the run, the executor's
+    ``agent`` is kept (``knowledge.json``, ``checkpoints/final``) and the ``world``'s state
+    goes to the final parts. Synchronous: it runs inside the cancelled scope."""
+    if not stalled(ctx) or ctx.out is None:
+        return
+    from qlap_runtime.qlap.checkpoint import atomic_write_json, save_final_checkpoint
+
+    if agent is not None:
+        atomic_write_json(Path(ctx.out) / "knowledge.json", agent.knowledge())
+        save_final_checkpoint(agent, Path(ctx.out) / "checkpoints", ctx.world)
+    if world is not None:
+        save_world_part(final_dir(ctx), world)
