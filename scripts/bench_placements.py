@@ -17,10 +17,10 @@ from pathlib import Path
 
 def main() -> None:
     import worlds
-    from actors.common import RunContext
     from qlap_runtime.agent_run import knowledge_json, params_for_world, run_agent
     from qlap_runtime.placements.launcher import run_embedded, run_processes
     from qlap_runtime.qlap import Params
+    from qlap_runtime.runtime.context import RunContext
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--world", default="core")

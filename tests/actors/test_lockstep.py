@@ -7,11 +7,11 @@ import json
 import pytest
 
 import worlds
-from actors.common import RunContext
 from qlap_runtime import agent_run
 from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.placements.launcher import run_embedded, run_processes
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 
 STEPS = 3000
 BASE = Params(babble_steps=1500, dbn_period=500, landmark_period=1000)
