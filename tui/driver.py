@@ -97,7 +97,7 @@ class LocalDriver:
             or getattr(world, "name", None)
         self._metrics: Any = None
         self.counter = RejectionCounter("agent")
-        self.runner = Runner(agent, str(self.world_spec),
+        self.runner = Runner(agent, self.world_spec,
                              clock=RunControl(paused=paused, speed=max(0.0, float(speed))),
                              out=self.out, checkpoints=self.checkpoint_dir,
                              counter=self.counter, key=keys.key(self.run_id, "control"),

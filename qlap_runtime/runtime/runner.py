@@ -50,7 +50,8 @@ class Runner:
     write anywhere else.
     """
 
-    def __init__(self, agent: Any, world_spec: str, *, clock: RunControl | None = None,
+    def __init__(self, agent: Any, world_spec: str | None, *,
+                 clock: RunControl | None = None,
                  out: Path | None = None, checkpoints: Path | None = None,
                  counter: RejectionCounter | None = None, key: str = "control",
                  run_id: str = "run") -> None:
