@@ -74,7 +74,8 @@ class Supervisor:
         self.max_restarts = max_restarts
         self.passwords = dict(passwords or {})
         """Each actor's password on the router (given to its process, never written)."""
-        self.snapshot_dir = None if ctx.snapshot_dir is None else Path(ctx.snapshot_dir)
+        self.snapshot_dir = ctx.snapshots
+        """None under the realtime clock (no snapshots): a dead actor stops the run."""
         self.procs: dict[str, Any] = {}
         self.attempts: dict[str, int] = dict.fromkeys(names, 0)
         self.restarts: list[Restart] = []
