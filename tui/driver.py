@@ -242,7 +242,8 @@ class LocalDriver:
             pending.append(self._controls.popleft())
         if not self.runner.apply(pending):
             return False
-        self._tick0 = None                  # the pace restarts from now: no catching up
+        if any(c.command in ("speed", "resume", "step") for c in pending):
+            self._tick0 = None              # the pace restarts from now: no catching up
         if self.runner.clock.quit:
             self._stop.set()
         return True
