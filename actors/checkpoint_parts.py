@@ -30,8 +30,7 @@ from qlap_runtime.qlap.checkpoint import (
     step_name,
     world_state_of,
 )
-
-from .common import RunContext
+from qlap_runtime.runtime.context import RunContext
 
 FINAL_PARTS = ".final-parts"
 
@@ -39,7 +38,7 @@ FINAL_PARTS = ".final-parts"
 def _writes(ctx: RunContext) -> bool:
     """Checkpoints with parts: outputs, lockstep (realtime states depend on timing), and a
     retention that keeps some."""
-    keep = ctx.extra.get("keep_checkpoints")
+    keep = ctx.keep_checkpoints
     return ctx.out is not None and not ctx.realtime and (keep is None or int(keep) != 0)
 
 

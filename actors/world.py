@@ -40,11 +40,14 @@ from qlap_runtime.bus.bridge import (
 from qlap_runtime.bus.replay import ReplayLog
 from qlap_runtime.bus.schema import Control, Sense, WorldView
 from qlap_runtime.qlap.perception import MAX_ABS_VALUE
+from qlap_runtime.runtime.clock import LockstepClock, RealtimeClock
+from qlap_runtime.runtime.context import RunContext
+from qlap_runtime.runtime.controls import Controls
+from qlap_runtime.runtime.inbox import StepInbox
+from qlap_runtime.runtime.rules import motor_rule
 from qlap_runtime.runtime.watchdog import slot_of
 
 from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
-from .common import ControlError, Controls, RunContext, RunControl, StepInbox
-from .rules import motor_rule
 
 NAME = "world"
 OTHERS_END_S = 120.0
@@ -107,76 +110,14 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
             last_view = 0.0
             if ready is not None:
                 await ready.wait()
-            hz = float(ctx.extra.get("hz", 100.0)) if ctx.realtime else 0.0
-            period = 1.0 / hz if ctx.realtime else 0.0
-            rc = RunControl(speed=hz, default_speed=hz)
-            tick0 = trio.current_time()
-            tick = 0
-            pace0 = (tick0, start)          # lockstep pacing: step s is due at t0 + (s - s0)/x
-            paused_s = 0.0
-            lateness: list[float] = []
-
-            async def gate(t: int) -> bool:
-                """Apply the pending controls, then wait while paused or ahead of the set pace
-                (a control arriving meanwhile is applied at once); False: quit."""
-                nonlocal tick0, tick, period, pace0, paused_s
-                rebase = False
-                while True:
-                    for c in controls.take():
-                        try:
-                            rebase = rc.apply(c) or rebase
-                        except ControlError as e:
-                            counter.reject(controls.key, f"{c.command}: {e}")
-                    if rc.quit:
-                        return False
-                    if not rc.may_step:
-                        t0 = time.perf_counter()
-                        slot.paused(True)           # no progress expected: not a stall
-                        try:
-                            await controls.wait()
-                        finally:
-                            slot.paused(False)
-                        paused_s += time.perf_counter() - t0
-                        rebase = True
-                        continue
-                    if rebase:              # the clock restarts from now: no catching up
-                        rebase = False
-                        pace0 = (trio.current_time(), t)
-                        if ctx.realtime:
-                            period, tick0, tick = 1.0 / rc.speed, pace0[0], 0
-                    if not ctx.realtime and rc.speed > 0 and not rc.paused:
-                        deadline = pace0[0] + (t - pace0[1]) / rc.speed
-                        if trio.current_time() < deadline:
-                            slot.paused(True)       # paced: a slow step is not a stall
-                            try:
-                                with trio.move_on_at(deadline) as pacing:
-                                    await controls.wait()
-                            finally:
-                                slot.paused(False)
-                            if not pacing.cancelled_caught:
-                                continue    # a control came first
-                    return True
-
+            clock = RealtimeClock(controls, counter, slot, ctx.hz) if ctx.realtime \
+                else LockstepClock(controls, counter, slot)
+            clock.start(start)
             last = start - 1
             loop_t0 = time.perf_counter()
             for t in range(start, start + ctx.steps):
-                if (controls.pending or not rc.may_step
-                        or (rc.speed > 0 and not ctx.realtime)) and not await gate(t):
+                if not await clock.before(t):
                     break
-                if ctx.realtime:
-                    # §4 realtime: tick at a fixed rate; a tick more than one period late is
-                    # missed (skipped, counted); the motor not back by the next deadline is
-                    # replaced by the previous one (a late tick).
-                    deadline = tick0 + tick * period
-                    now = trio.current_time()
-                    if now > deadline + period:
-                        skipped = int((now - deadline) // period)
-                        stats["missed_ticks"] = stats.get("missed_ticks", 0) + skipped
-                        tick += skipped
-                        deadline = tick0 + tick * period
-                    await trio.sleep_until(deadline)
-                    lateness.append(trio.current_time() - deadline)
-                    tick += 1
                 values = dict(obs)
                 values.update(applied)
                 values, bad = bus_values(values, available, t)
@@ -186,16 +127,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 pub.put(sense)
                 replay.append(t, sense)             # for a perception actor restarted later
                 t0 = time.perf_counter()
-                if ctx.realtime:
-                    motor = None
-                    with trio.move_on_at(tick0 + tick * period):   # the next tick's deadline
-                        motor = await inbox.get(t)
-                    if motor is None:
-                        stats["late_ticks"] = stats.get("late_ticks", 0) + 1
-                    for old in [k for k in inbox.buf if k <= t]:
-                        inbox.drop(old)             # motors that came after their deadline
-                else:
-                    motor = await inbox.get(t)
+                motor = await clock.motor(inbox, t)
                 stats["wait_s"] += time.perf_counter() - t0
                 if motor is not None:
                     applied = dict(motor.values)
@@ -208,7 +140,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                     stats["world_error"] = str(failed)
                     stats["steps"] += 1
                     last = t
-                    rc.quit = True
+                    clock.state.quit = True
                     break
                 now = time.perf_counter()
                 if now - last_view >= 0.1:                    # the UI's world panel, 10 Hz
@@ -218,22 +150,22 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                                        {k: float(v) for k, v in obs.items()
                                         if math.isfinite(v)}, applied, {}))
                 stats["steps"] += 1
-                rc.stepped()
+                clock.stepped()
                 slot.done(t)
                 last = t
                 save_world_part(part_dir(ctx, t), world)   # the executor's checkpoint's part
             slot.finished()
             if failed is None:
                 save_world_part(final_dir(ctx), world)
-            if rc.quit:
+            if clock.state.quit:
                 # The end marker: every other actor ends after step `last` (the last one whose
                 # sense was published and whose motor was applied) and writes its outputs.
                 end_marker.put(Control("quit", {"last_step": last}))
                 stats["quit_at_step"] = last
             # The step chain's own rate, start-up (imports, sessions, waiting for the other
             # actors) and pauses excluded: what the benchmarks compare between placements.
-            stats["loop_s"] = round(time.perf_counter() - loop_t0 - paused_s, 3)
-            stats["paused_s"] = round(paused_s, 3)
+            stats["loop_s"] = round(time.perf_counter() - loop_t0 - clock.paused_s, 3)
+            stats["paused_s"] = round(clock.paused_s, 3)
     except BaseException:                       # cancelled (maybe in a group) by a stall
         keep_on_stall(ctx, world=world)         # a stalled run keeps the world's state
         raise
@@ -243,13 +175,7 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
     if failed is not None:
         await _after_failure(session, ctx, stats)
         raise failed
-    if ctx.realtime and lateness:
-        ms = sorted(x * 1e3 for x in lateness)
-        stats.update(hz=1.0 / period, late_ticks=stats.get("late_ticks", 0),
-                     missed_ticks=stats.get("missed_ticks", 0),
-                     lateness_p50_ms=round(ms[len(ms) // 2], 3),
-                     lateness_p99_ms=round(ms[min(len(ms) - 1, int(len(ms) * 0.99))], 3),
-                     lateness_max_ms=round(ms[-1], 3))
+    stats.update(clock.stats())
     return stats
 
 
@@ -274,6 +200,6 @@ async def _after_failure(session, ctx: RunContext, stats: dict) -> None:
         summary = json.loads(executor.read_text()) if executor.exists() else {}
     except (OSError, ValueError):
         summary = {}
-    summary.update(placement=ctx.extra.get("placement"), world=ctx.world, seed=ctx.seed,
+    summary.update(placement=ctx.placement, world=ctx.world, seed=ctx.seed,
                    steps=stats["steps"], world_error=stats["world_error"], world_actor=stats)
     atomic_write_json(out / "summary.json", summary)

@@ -616,12 +616,11 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     """``qlap run --placement embedded|processes``: the actor runtime in lockstep."""
     import threading
 
-    from actors.common import RunContext
-
     from .agent_run import params_for_world
     from .bus import keys
     from .metrics import METRICS_FILE, PlainProgress, follow_metrics
     from .placements.launcher import run_embedded, run_processes
+    from .runtime.context import RunContext
 
     params = params_for_world(world, params)
     world.close()
@@ -639,11 +638,8 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     out = _prepare_out(args)
     if out is None:
         return 2
-    extra = {"clock": args.clock, "hz": args.hz}
-    if args.keep_checkpoints is not None:
-        extra["keep_checkpoints"] = args.keep_checkpoints
     ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=out,
-                     extra=extra)
+                     clock=args.clock, hz=args.hz, keep_checkpoints=args.keep_checkpoints)
     print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
           f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
     from .bus.auth import CREDENTIALS_FILE
@@ -699,14 +695,13 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
 def _cmd_actor(args: argparse.Namespace) -> int:
     import zenoh
 
-    from actors.common import RunContext
-
     from .agent_run import params_for_world
     from .bus import keys
     from .bus.cli import _client
     from .bus.config import BusConfigError
     from .placements.launcher import run_actor
     from .qlap import Params
+    from .runtime.context import RunContext
 
     world = _make_world(args.world, "actor")
     if world is None:

@@ -1,10 +1,12 @@
 #!/usr/bin/env python3
 """Lockstep steps per second of each placement, all learning on (issue 5's "Fast").
 
-Runs the same world, seed and parameters with the synchronous loop, the embedded actors and one
-process per actor, prints steps/s and waits, and checks that the three learned the same thing.
+Runs the same world, seed and parameters with the synchronous loop, the embedded actors, one
+process per actor and (``--local``) the terminal UI's local runner, prints steps/s and waits,
+and checks that they all learned the same thing.
 
 Usage: scripts/bench_placements.py [--world core] [--steps 6000] [--lag 500] [--babble 3000]
+                                   [--local]
 """
 
 from __future__ import annotations
@@ -17,10 +19,10 @@ from pathlib import Path
 
 def main() -> None:
     import worlds
-    from actors.common import RunContext
     from qlap_runtime.agent_run import knowledge_json, params_for_world, run_agent
     from qlap_runtime.placements.launcher import run_embedded, run_processes
     from qlap_runtime.qlap import Params
+    from qlap_runtime.runtime.context import RunContext
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--world", default="core")
@@ -28,6 +30,8 @@ def main() -> None:
     ap.add_argument("--lag", type=int, default=500)
     ap.add_argument("--babble", type=int, default=3000)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--local", action="store_true",
+                    help="also the terminal UI's local runner (tui/driver.py)")
     args = ap.parse_args()
     world = worlds.make(args.world)
     params = params_for_world(world, Params(babble_steps=args.babble, batch_lag=args.lag))
@@ -44,6 +48,23 @@ def main() -> None:
         same = (out / "knowledge.json").read_text() == reference
         print(f"  {name:10s} {s['loop_steps_per_s']:8,.0f} steps/s (start-up excluded; "
               f"{s['steps_per_s']:,.0f} with it)  waits {s['waits']}  "
+              f"identical knowledge: {same}")
+    if args.local:
+        from tui.driver import LocalDriver
+
+        out = Path(tempfile.mkdtemp(prefix="bench-local-"))
+        world = worlds.make(args.world)
+        d = LocalDriver(world, seed=args.seed, params=params, steps=args.steps, out=out,
+                        run_id="bench-local", world_spec=args.world)
+        t0 = time.perf_counter()
+        d.start()
+        while not d.finished and d.alive:
+            d.wait(0.05)
+        wall = time.perf_counter() - t0
+        d.stop()
+        world.close()
+        same = (out / "knowledge.json").read_text() == reference
+        print(f"  {'local':10s} {args.steps / wall:8,.0f} steps/s (start-up included)  "
               f"identical knowledge: {same}")
 
 

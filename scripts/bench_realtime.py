@@ -16,9 +16,9 @@ import argparse
 
 
 def main() -> None:
-    from actors.common import RunContext
     from qlap_runtime.placements.launcher import run_embedded, run_processes
     from qlap_runtime.qlap import Params
+    from qlap_runtime.runtime.context import RunContext
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--world", default="core")
@@ -35,7 +35,7 @@ def main() -> None:
     for name in args.placement or list(placements):
         fn = placements[name]
         ctx = RunContext(f"rt-{name}", args.world, args.steps, 0, params,
-                         extra={"clock": "realtime", "hz": args.hz})
+                         clock="realtime", hz=args.hz)
         s = fn(ctx)
         batches = sum(a.get("batches", 0) for a in s["actors"].values())
         print(f"  {name:10s} late ticks {s.get('late_ticks')}, missed ticks "

@@ -32,11 +32,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import worlds
-from actors.common import RunContext
 from qlap_runtime import agent_run
 from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.placements.launcher import run_processes
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.snapshot import latest_snapshot
 from qlap_runtime.runtime.supervisor import RESTARTABLE, Supervisor
 
@@ -110,9 +110,9 @@ def trial(i: int, args: argparse.Namespace) -> dict:
     with tempfile.TemporaryDirectory(prefix="qlap-chaos-") as tmp:
         w = worlds.make(WORLD)
         ctx = RunContext(f"chaos-{i}", WORLD, args.steps, seed, params_for_world(w, params),
-                         out=Path(tmp))
+                         out=Path(tmp), snapshot_every=args.snapshot_every,
+                         stall_s=args.stall_s)
         w.close()
-        ctx.extra.update(snapshot_every=args.snapshot_every, stall_s=args.stall_s)
         timer = threading.Timer(args.limit_s, lambda: os.kill(os.getpid(), signal.SIGTERM))
         timer.start()
         t0 = time.monotonic()

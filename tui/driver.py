@@ -4,15 +4,16 @@
 thread (never waiting for a viewer), publishes the display topics of
 :mod:`qlap_runtime.telemetry` with ``CongestionControl.DROP`` on an embedded session (no
 sockets; ``listen=[...]`` lets outside viewers attach, ``qlap tui --connect``), and obeys
-:class:`~qlap_runtime.bus.schema.Control` messages on ``qlap/<run>/control``:
+:class:`~qlap_runtime.bus.schema.Control` messages on ``qlap/<run>/control`` through the
+runner contract the executor actor uses too (:mod:`qlap_runtime.runtime.runner`):
 
 =========  =========================================================================
 pause      stop stepping (publishes a status at once)
 resume     go on
 step       ``{"n": 1}``: advance n steps while paused
 speed      ``{"steps_per_s": x}``: pace the run at x steps/s (realtime clock); 0 = free
-save       ``{"path": dir}`` (optional): checkpoint via ``save_agent`` (default: the run's
-           ``checkpoints/step-NNNNNNN``)
+save       ``{"path": dir}`` (optional, inside the run directory): checkpoint via
+           ``save_agent`` (default: the run's ``checkpoints/step-NNNNNNN``)
 goal       ``{"var": name, "value": label or index}`` → ``agent.set_goal``; ``{"clear": true}``
 quit       stop the run (the thread ends; the driver's owner closes the session)
 =========  =========================================================================
@@ -36,13 +37,13 @@ import zenoh
 
 from qlap_runtime import telemetry
 from qlap_runtime.bus import keys
-from qlap_runtime.bus.bridge import Publisher, declare_alive
+from qlap_runtime.bus.bridge import RejectionCounter, declare_alive
 from qlap_runtime.bus.config import embedded_config
-from qlap_runtime.bus.schema import Control, MessageError, decode
+from qlap_runtime.bus.schema import Control
+from qlap_runtime.runtime.controls import RunControl
+from qlap_runtime.runtime.runner import Display, Runner
 
 log = logging.getLogger("qlap.tui.driver")
-
-DISPLAY = ("calllist", "iac", "knowledge", "world", "status", "stats")
 
 
 class LocalDriver:
@@ -87,8 +88,6 @@ class LocalDriver:
         self.agent = agent
         self.steps = steps
         self.run_id = keys.validate_run_id(run_id) if run_id else keys.new_run_id()
-        self.speed = float(speed)
-        self.paused = paused
         self.out = None if out is None else Path(out)
         self.checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else (
             self.out / "checkpoints" if self.out is not None else Path("qlap-checkpoints"))
@@ -97,7 +96,14 @@ class LocalDriver:
         self.world_spec = world_spec or getattr(world, "spec", None) \
             or getattr(world, "name", None)
         self._metrics: Any = None
-        self._agent_changes = 0             # goal commands applied (they change the agent)
+        self.counter = RejectionCounter("agent")
+        self.runner = Runner(agent, self.world_spec,
+                             clock=RunControl(paused=paused, speed=max(0.0, float(speed))),
+                             out=self.out, checkpoints=self.checkpoint_dir,
+                             counter=self.counter, key=keys.key(self.run_id, "control"),
+                             run_id=self.run_id)
+        """Applies the controls (the contract the executor actor shares)."""
+        self.display: Display | None = None
         self._last_saved: tuple[int, int, Path | None] = (-1, -1, None)
         self._rejected: list[str] = []
         self._outputs_written = False
@@ -114,18 +120,23 @@ class LocalDriver:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._step_budget = 0
-        self._message = ""
         self._started = 0.0
         self._late = 0
         self._missed = 0
         self._obs: Mapping[str, float] = {}
         self._motor: dict[str, float] = {}
         self.finished = False
-        self._finished_at = 0.0
         self.error: BaseException | None = None
         self.steps_done = 0
         """Steps run by this driver (read from other threads for tests and benches)."""
+
+    @property
+    def paused(self) -> bool:
+        return self.runner.clock.paused
+
+    @property
+    def speed(self) -> float:
+        return self.runner.clock.speed
 
     # ----------------------------------------------------------------------------- lifecycle
     @property
@@ -147,7 +158,10 @@ class LocalDriver:
     def start(self) -> LocalDriver:
         """Open the session if needed, subscribe to control and start the worker thread."""
         session = self.open()
-        self._pubs = {t: Publisher(session, self.run_id, t) for t in DISPLAY}
+        self.display = Display(session, self.run_id, placement="embedded",
+                               world=str(getattr(self.world, "name", "")), seed=self.seed,
+                               world_view=lambda: telemetry.world_msg(self.agent, self.world),
+                               cadence=self.cadence)
         self._control_sub = session.declare_subscriber(keys.key(self.run_id, "control"),
                                                        self._on_control)
         self._token = declare_alive(session, self.run_id, "agent")
@@ -176,15 +190,16 @@ class LocalDriver:
             self._thread.join(timeout)
             if self._thread.is_alive():  # pragma: no cover - a step never takes that long
                 log.error("agent thread did not stop within %.1f s", timeout)
-        for obj in [getattr(self, "_control_sub", None), getattr(self, "_token", None),
-                    *getattr(self, "_pubs", {}).values()]:
+        for obj in [getattr(self, "_control_sub", None), getattr(self, "_token", None)]:
             if obj is None:
                 continue
             try:
-                obj.undeclare() if not isinstance(obj, Publisher) else obj.close()
+                obj.undeclare()
             except zenoh.ZError:  # pragma: no cover - already gone
                 pass
-        self._pubs = {}
+        if self.display is not None:
+            self.display.close()
+            self.display = None
         self._control_sub = self._token = None
         if self._own_session and self._session is not None:
             self._session.close()
@@ -210,65 +225,28 @@ class LocalDriver:
     # ----------------------------------------------------------------------------- control
     def _on_control(self, sample: zenoh.Sample) -> None:
         # Zenoh's thread (or the publisher's, same session): only queue and wake.
-        try:
-            msg = decode(str(sample.key_expr), sample.payload.to_bytes())
-        except MessageError as e:
-            log.warning("rejected control message: %s", e)
-            return
-        self._controls.append(msg)  # type: ignore[arg-type]
-        self._wake.set()
+        msg = self.counter.decode(str(sample.key_expr), sample.payload.to_bytes())
+        if isinstance(msg, Control):
+            self._controls.append(msg)
+            self._wake.set()
 
     def command(self, command: str, **args: Any) -> None:
         """Queue a control command directly (same effect as one arriving on the bus)."""
         self._controls.append(Control(command, args))  # type: ignore[arg-type]
         self._wake.set()
 
-    def _apply(self, c: Control) -> None:
-        a = c.args
-        if c.command in ("pause", "resume", "step") and self.finished:
-            # The last step is done: the run stays FINISHED and takes no more steps.
-            self._message = (f"finished at step {self.agent.step_count + 1}: "
-                             f"{c.command} ignored")
-        elif c.command == "pause":
-            self.paused, self._step_budget = True, 0
-            self._message = "paused"
-        elif c.command == "resume":
-            self.paused, self._step_budget = False, 0
-            self._message = "resumed"
-        elif c.command == "step":
-            self.paused = True
-            self._step_budget += max(1, int(a.get("n", 1)))
-            self._message = f"step {self._step_budget}"
-        elif c.command == "speed":
-            self.speed = max(0.0, float(a.get("steps_per_s", 0.0)))
-            self._message = f"speed {self.speed:g} steps/s" if self.speed else "speed: free"
-            self._tick0 = None
-        elif c.command == "save":
-            from qlap_runtime.qlap.checkpoint import save_agent
-
-            path = Path(a["path"]) if a.get("path") else (
-                self.checkpoint_dir / f"step-{max(self.agent.step_count + 1, 0):07d}")
-            try:
-                save_agent(self.agent, path, self.world_spec)
-                self._message = f"saved {path}"
-            except Exception as e:
-                self._message = f"save failed: {type(e).__name__}: {e}"
-        elif c.command == "goal":
-            if a.get("clear") or a.get("var") in (None, ""):
-                self.agent.clear_goal()
-                self._message = "goal cleared"
-            else:
-                self._agent_changes += 1
-                try:
-                    value = a.get("value")
-                    key = telemetry.goal_key(self.agent, str(a["var"]), value)
-                    self.agent.set_goal(*key)
-                    self._message = f"goal {telemetry.pretty(self.agent.action_label(key))}"
-                except (ValueError, KeyError, TypeError) as e:
-                    self._message = f"goal refused: {e}"
-        elif c.command == "quit":
-            self._message = "quit"
+    def _apply_pending(self) -> bool:
+        """Apply the queued commands (the runner contract); True if there were any."""
+        pending = []
+        while self._controls:
+            pending.append(self._controls.popleft())
+        if not self.runner.apply(pending):
+            return False
+        if any(c.command in ("speed", "resume", "step") for c in pending):
+            self._tick0 = None              # the pace restarts from now: no catching up
+        if self.runner.clock.quit:
             self._stop.set()
+        return True
 
     # ----------------------------------------------------------------------------- the loop
     def _main(self) -> None:
@@ -276,7 +254,7 @@ class LocalDriver:
             self._loop()
         except BaseException as e:  # report, never hang the UI
             self.error = e
-            self._message = f"agent stopped: {type(e).__name__}: {e}"
+            self.runner.message = f"agent stopped: {type(e).__name__}: {e}"
             log.exception("agent thread failed")
             try:
                 self._publish(time.perf_counter(), force=True)
@@ -289,16 +267,13 @@ class LocalDriver:
         agent, world = self.agent, self.world
         self._tick0: tuple[float, int] | None = None
         self._publish(time.perf_counter(), force=True)
+        clock = self.runner.clock
         while not self._stop.is_set():
-            changed = False
-            while self._controls:
-                self._apply(self._controls.popleft())
-                changed = True
-            if changed:
+            if self._apply_pending():
                 self._publish(time.perf_counter(), force=True)
                 if self._stop.is_set():
                     break
-            if self.finished or (self.paused and self._step_budget <= 0):
+            if self.finished or not clock.may_step:
                 self._wake.wait(0.25)
                 self._wake.clear()
                 self._publish(time.perf_counter())
@@ -313,14 +288,15 @@ class LocalDriver:
             self._obs = world.step(self._motor)
             self.steps_done += 1
             self._record(t)
-            if self._step_budget > 0:
-                self._step_budget -= 1
-                if self._step_budget == 0:
+            if clock.budget > 0:
+                clock.stepped()
+                if clock.budget == 0:
                     self._publish(time.perf_counter(), force=True)
             if self.steps is not None and self.steps_done >= self.steps:
-                self.finished = True
-                self._finished_at = time.perf_counter()     # the wall clock stops here
-                self._message = f"finished {self.steps_done} steps"
+                self.finished = self.runner.finished = True
+                if self.display is not None:
+                    self.display.finish()                   # the wall clock stops here
+                self.runner.message = f"finished {self.steps_done} steps"
                 self.write_outputs()
                 if self.on_finish is not None:
                     self.on_finish(self)
@@ -345,7 +321,7 @@ class LocalDriver:
         if self.out is not None and (t + 1) % self.checkpoint_every == 0:
             from qlap_runtime.qlap.checkpoint import save_step_checkpoint
 
-            self._last_saved = (self.agent.step_count, self._agent_changes,
+            self._last_saved = (self.agent.step_count, self.runner.agent_changes,
                                 save_step_checkpoint(self.agent, self.out / "checkpoints",
                                                      t + 1, self.world_spec,
                                                      self.keep_checkpoints))
@@ -369,7 +345,8 @@ class LocalDriver:
                           summary_of(agent, self.world, self.seed, self.steps_done, wall,
                                      self._rejected))
         step, changes, path = self._last_saved
-        same = path if (step, changes) == (agent.step_count, self._agent_changes) else None
+        same = path if (step, changes) == (agent.step_count, self.runner.agent_changes) \
+            else None
         save_final_checkpoint(agent, self.out / "checkpoints", self.world_spec, same_as=same)
         from qlap_runtime.analysis.plot import plot_run_if_possible
 
@@ -393,33 +370,11 @@ class LocalDriver:
                 self._tick0 = (now, self.steps_done)
 
     # ----------------------------------------------------------------------------- publish
-    def status(self, now: float | None = None) -> Any:
-        now = time.perf_counter() if now is None else now
-        return telemetry.status_msg(
-            self.agent, steps_per_s=self.cadence.steps_per_s(now, self.agent.step_count),
-            paused=self.paused, finished=self.finished, speed=self.speed,
-            clock="realtime" if self.speed > 0 else "free", placement="embedded",
-            world=str(getattr(self.world, "name", "")), seed=self.seed,
-            late_ticks=self._late, missed_ticks=self._missed,
-            wall_s=(self._finished_at if self.finished else now) - self._started,
-            message=self._message)
-
     def _publish(self, now: float, force: bool = False) -> None:
-        agent, cad, pubs = self.agent, self.cadence, self._pubs
-        if cad.display_due(now) or force:
-            for msg in telemetry.iac_msgs(agent, cad.last_iac_step):
-                pubs["iac"].put(msg)
-                cad.last_iac_step = msg.step
-            pubs["calllist"].put(telemetry.call_list_msg(agent))
-            pubs["world"].put(telemetry.world_msg(agent, self.world))
-            status = self.status(now)
-            pubs["status"].put(status)
-            if cad.stats_due(now):
-                pubs["stats"].put(telemetry.stats_msg(status))
-        sig = telemetry.knowledge_signature(agent)
-        if cad.knowledge_due(now, agent.step_count, sig) or (force and sig != cad.last_signature):
-            cad.last_signature = sig
-            pubs["knowledge"].put(telemetry.knowledge_msg(agent))
+        if self.display is not None:
+            self.display.publish(self.agent, self.runner.clock,
+                                 clock_name="realtime" if self.speed > 0 else "free",
+                                 force=force, late_ticks=self._late, missed_ticks=self._missed)
 
 
 # --------------------------------------------------------------------------------- process

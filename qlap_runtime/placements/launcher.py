@@ -63,12 +63,11 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     from ..runtime.watchdog import DEFAULT_STALL_S, Board, Watchdog
 
     results: dict[str, Any] = {}
-    ctx.extra.setdefault("placement", "embedded")
+    ctx = ctx.with_(placement=ctx.placement or "embedded", board=Board(ACTORS))
     if ctx.out is not None:
         check_out(Path(ctx.out))
-    auth = _listen_auth(ctx, listen)
-    ctx.board = Board(ACTORS)
-    watchdog = Watchdog(ctx.board, float(ctx.extra.get("stall_s", 0) or 0) or DEFAULT_STALL_S)
+    ctx, auth = _listen_auth(ctx, listen)
+    watchdog = Watchdog(ctx.board, ctx.stall_s or DEFAULT_STALL_S)
     t0 = time.perf_counter()
     try:
         await _embedded_actors(ctx, listen, auth, record, extra, watchers, watchdog, results)
@@ -111,23 +110,23 @@ async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, An
             stop.set()
 
 
-def _listen_auth(ctx: Any, listen: tuple[str, ...]) -> dict[str, Any]:
+def _listen_auth(ctx: Any, listen: tuple[str, ...]) -> tuple[Any, dict[str, Any]]:
     """Authorisation by default for an embedded run that listens (docs/security.md): fresh
     ``tui`` and ``viewer`` credentials and the run's ACL; the credentials go to
-    ``<out>/bus-credentials.json`` (mode 0600), or ``extra["credentials"]``."""
+    ``<out>/bus-credentials.json`` (mode 0600), or ``ctx.credentials``."""
     if not listen:
-        return {}
+        return ctx, {}
     from ..bus.auth import CREDENTIALS_FILE, run_acl, run_users, write_credentials
 
     users = run_users()
-    where = ctx.extra.get("credentials") or (
+    where = ctx.credentials or (
         Path(ctx.out) / CREDENTIALS_FILE if ctx.out is not None else None)
     if where is None:
         import tempfile
 
         where = Path(tempfile.mkdtemp(prefix=f"qlap-{ctx.run_id}-")) / CREDENTIALS_FILE
-    ctx.extra["credentials"] = str(write_credentials(Path(where), listen, users))
-    return {"users": users, "acl": run_acl(users)}
+    ctx = ctx.with_(credentials=write_credentials(Path(where), listen, users))
+    return ctx, {"users": users, "acl": run_acl(users)}
 
 
 async def _watch_stalls(watchdog: Any, stop: trio.Event) -> None:
@@ -186,14 +185,14 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
     import os
     import signal
 
-    from actors.common import RunContext
+    from ..runtime.context import RunContext
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     ctx = RunContext.from_json(json.loads(ctx_json))
     if slot is not None:                            # the supervisor's progress board
         from ..runtime.watchdog import Board
 
-        ctx.board = Board((name,), {name: slot})
+        ctx = ctx.with_(board=Board((name,), {name: slot}))
     parent = os.getppid()
 
     async def watch(cancel: trio.CancelScope) -> None:
@@ -279,7 +278,7 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
     import tempfile
 
     port = listen_port or free_port()
-    ctx.extra.setdefault("placement", "processes")
+    ctx = ctx.with_(placement=ctx.placement or "processes")
     if ctx.out is not None:
         check_out(Path(ctx.out))
     endpoint = f"tcp/127.0.0.1:{port}"
@@ -291,13 +290,12 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
 
     users = run_users(ACTORS)
     if ctx.out is not None:
-        ctx.extra["credentials"] = str(write_credentials(Path(ctx.out) / CREDENTIALS_FILE,
-                                                         [endpoint], users))
+        ctx = ctx.with_(credentials=write_credentials(Path(ctx.out) / CREDENTIALS_FILE,
+                                                      [endpoint], users))
     with zenoh.open(router_config([endpoint], users=users, acl=run_acl(users))) as router, \
             tempfile.TemporaryDirectory(prefix=RUN_DIR_PREFIX) as tmp:
         (Path(tmp) / OWNER_FILE).write_text(f"{os.getpid()}\n")
-        run_ctx = type(ctx).from_json(ctx.to_json())
-        run_ctx.extra.setdefault("snapshot_dir", str(Path(tmp) / "snapshots"))
+        run_ctx = ctx.with_(snapshot_dir=ctx.snapshot_dir or Path(tmp) / "snapshots")
         recorder = _Recorder(router, ctx.run_id, record, ctx.to_json()) \
             if record is not None else None
         sup = Supervisor(run_ctx, endpoint, Path(tmp), ACTORS, _actor_process,
@@ -404,7 +402,7 @@ class _Recorder:
 
 def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float,
             restarts: dict[str, Any] | None = None) -> dict[str, Any]:
-    clock = ctx.extra.get("clock", "lockstep")
+    clock = ctx.clock
     steps = int(results.get("world", {}).get("steps", ctx.steps))   # fewer after a quit
     summary: dict[str, Any] = {"placement": placement, "clock": clock,
                                "world": ctx.world, "seed": ctx.seed, "steps": steps,
@@ -450,7 +448,7 @@ def run_actor(name: str, ctx: Any, config: zenoh.Config) -> dict[str, Any]:
 
     if name not in ACTORS:
         raise ValueError(f"unknown actor {name!r}; known: {', '.join(ACTORS)}")
-    ctx.extra.setdefault("placement", "distributed")
+    ctx = ctx.with_(placement=ctx.placement or "distributed")
 
     async def until_signal(cancel: trio.CancelScope) -> None:
         with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:

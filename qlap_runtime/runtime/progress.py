@@ -42,7 +42,7 @@ async def watch_progress(session: Any, ctx: Any, stop: trio.Event, bar: Any = No
     ``stop`` is set; the bar then shows the whole run as done."""
     bar = bar if bar is not None else progress_bar(ctx.steps)
     task = bar.task_ids[0]
-    start = int(ctx.extra.get("start_step", 0))
+    start = ctx.start
     counter = RejectionCounter("progress")
     t0 = time.perf_counter()
     bar.start()

@@ -37,7 +37,7 @@ from .lockstep import DeltaBook
 FORMAT = "qlap-actor-snapshot"
 VERSION = 1
 DEFAULT_EVERY = 1000
-"""Steps between two snapshots of an actor unless ``ctx.extra["snapshot_every"]`` says."""
+"""Steps between two snapshots of an actor unless ``RunContext.snapshot_every`` says."""
 
 
 def book_state(book: DeltaBook) -> dict[str, Any]:

@@ -2,7 +2,7 @@
 
 See docs/architecture.md §2 (processes). The launcher starts one ``spawn`` process per actor and
 polls them here. An actor that dies (any non-zero exit: a crash, SIGKILL, the OOM killer) is
-started again with ``ctx.extra["restarted"]`` and ``ctx.extra["resume_from"]`` = its latest
+started again with ``ctx.restarted`` and ``ctx.resume_from`` = its latest
 snapshot (``snapshot.latest_snapshot``; none yet: from the start). The new process loads the
 snapshot, fetches from the writers' replay logs what it missed, catches up and continues live
 (docs/runtime.md, Faults). Because the lockstep clock makes each actor's state a function of its
@@ -59,7 +59,7 @@ class Supervisor:
     """Starts the actor processes and restarts those that die (see the module docstring).
 
     ``target(name, ctx_json, endpoint, result_path)`` is an actor process's entry point;
-    ``ctx`` must have ``extra["snapshot_dir"]`` for restarts to resume from snapshots.
+    ``ctx`` must have a ``snapshot_dir`` for restarts to resume from snapshots.
     """
 
     def __init__(self, ctx: Any, endpoint: str, workdir: Path, names: tuple[str, ...],
@@ -74,7 +74,8 @@ class Supervisor:
         self.max_restarts = max_restarts
         self.passwords = dict(passwords or {})
         """Each actor's password on the router (given to its process, never written)."""
-        self.snapshot_dir = None if ctx.snapshot_dir is None else Path(ctx.snapshot_dir)
+        self.snapshot_dir = ctx.snapshots
+        """None under the realtime clock (no snapshots): a dead actor stops the run."""
         self.procs: dict[str, Any] = {}
         self.attempts: dict[str, int] = dict.fromkeys(names, 0)
         self.restarts: list[Restart] = []
@@ -83,16 +84,16 @@ class Supervisor:
         # The progress board in shared memory: each incarnation of an actor gets its slot.
         self.shared = {n: self._spawn.RawArray("d", SIZE) for n in names}
         self.board = Board(names, self.shared)
-        self.watchdog = Watchdog(self.board, float(ctx.extra.get("stall_s", 0) or 0)
-                                 or _default_stall())
+        self.watchdog = Watchdog(self.board, ctx.stall_s or _default_stall())
 
     def result_path(self, name: str) -> Path:
         return self.workdir / f"{name}.json"
 
-    def start(self, name: str, extra: dict[str, Any] | None = None) -> None:
-        """Start (or start again) one actor's process."""
-        ctx_json = self.ctx.to_json()
-        ctx_json["extra"] = {**ctx_json["extra"], **(extra or {})}
+    def start(self, name: str, resume_from: Path | None = None, *,
+              restarted: bool = False) -> None:
+        """Start (or start again, ``restarted`` from the snapshot ``resume_from``) one
+        actor's process."""
+        ctx_json = self.ctx.with_(restarted=restarted, resume_from=resume_from).to_json()
         self.board.slot(name).restarted()
         p = self._spawn.Process(target=self.target, name=f"qlap-{name}",
                                 args=(name, json.dumps(ctx_json), self.endpoint,
@@ -160,8 +161,7 @@ class Supervisor:
             log.warning("actor %s exited with code %s; restarting %s from snapshot at step %d "
                         "(attempt %d)", name, code, name, step, attempt)
         self.restarts.append(Restart(name, attempt, code, step))
-        self.start(name, {"restarted": True,
-                          "resume_from": "" if latest is None else str(latest[1])})
+        self.start(name, None if latest is None else latest[1], restarted=True)
 
     def stop(self, timeout: float = 10.0) -> None:
         """Terminate (SIGTERM: each closes its session) and reap every process still running."""

@@ -28,7 +28,7 @@ from typing import Any
 from .supervisor import ActorFailed
 
 DEFAULT_STALL_S = 30.0
-"""Seconds without progress after which a run is stalled (``ctx.extra["stall_s"]``)."""
+"""Seconds without progress after which a run is stalled (``RunContext.stall_s``)."""
 
 TOPICS = ("", "sense", "qstate", "motor", "batchctx", "delta/dbn", "delta/landmarks",
           "control")

@@ -8,10 +8,10 @@ import trio
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from actors.common import RunContext
 from qlap_runtime.bus import keys
 from qlap_runtime.placements.launcher import run_embedded_async
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 from tests.actors.test_lockstep import sync_knowledge
 
 TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "control")

@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 
 import worlds
-from actors.common import RunContext
 from qlap_runtime.agent_run import WorldFailed, knowledge_json, params_for_world, run_agent
 from qlap_runtime.placements.launcher import run_embedded, run_processes
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 from tests.actors import badworld
 
 ROOT = Path(__file__).resolve().parents[2]

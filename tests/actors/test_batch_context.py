@@ -9,7 +9,7 @@ would differ from the synchronous loop's once an action becomes reliable (practi
 from __future__ import annotations
 
 import worlds
-from actors.common import apply_batch_context, batch_context
+from actors.convert import apply_batch_context, batch_context
 from qlap_runtime.agent_run import params_for_world, run_agent
 from qlap_runtime.bus.schema import BatchContext, decode, encode
 from qlap_runtime.qlap import Params

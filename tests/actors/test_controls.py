@@ -17,7 +17,6 @@ from typing import Any
 import trio
 
 import worlds
-from actors.common import RunContext
 from qlap_runtime import agent_run
 from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.bus import keys
@@ -25,6 +24,7 @@ from qlap_runtime.bus.bridge import TrioSubscriber
 from qlap_runtime.bus.schema import AgentStatus, Control, encode
 from qlap_runtime.placements.launcher import free_port, run_embedded_async
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 
 PARAMS = Params(babble_steps=1000, dbn_period=250, landmark_period=500, min_data_points=10)
 """Short periods and a low data threshold: DBNs from ~1,000 steps on (a few seconds)."""
@@ -35,7 +35,7 @@ def context(tmp_path: Path, run_id: str, steps: int, seed: int, params: Params =
     world = worlds.make("core2d")
     params = params_for_world(world, params)
     world.close()
-    return RunContext(run_id, "core2d", steps, seed, params, out=tmp_path, extra=dict(extra))
+    return RunContext(run_id, "core2d", steps, seed, params, out=tmp_path, **extra)
 
 
 def sync_knowledge(ctx: RunContext, steps: int) -> str:

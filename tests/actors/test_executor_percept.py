@@ -11,7 +11,7 @@ from the synchronous loop at the first landmark applied during practice, step 28
 from __future__ import annotations
 
 import worlds
-from actors.common import percept_from_qstate, qstate_of
+from actors.convert import QStateCodec
 from qlap_runtime.qlap import ModelLearner, Params
 from qlap_runtime.qlap.delta import Delta
 from qlap_runtime.qlap.perception import Perception
@@ -32,8 +32,8 @@ def test_a_landmark_applied_after_observing_renumbers_the_returned_percept():
 
     for t in (0, 1):
         p_sync = sync.observe(t, full)
-        msg = qstate_of(perception.perceive(t, perception.vector(full)), perception.table)
-        p_exec = follower.observe_percept(percept_from_qstate(msg, follower.table))
+        msg = QStateCodec(perception.table).message(perception.perceive(t, perception.vector(full)))
+        p_exec = follower.observe_percept(QStateCodec(follower.table).percept(msg))
     x = float(p_sync.x[var.index])
     before = int(p_sync.q[var.index])
     assert int(p_exec.q[var.index]) == before

@@ -13,12 +13,12 @@ import time
 import pytest
 
 import worlds
-from actors.common import RunContext
 from qlap_runtime import agent_run
 from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.bus.recorder import read_mcap
 from qlap_runtime.placements.launcher import run_processes
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.snapshot import latest_snapshot
 from qlap_runtime.runtime.supervisor import Supervisor
 
@@ -39,9 +39,8 @@ def context(tmp_path, params: Params, seed: int, run_id: str) -> RunContext:
     world = worlds.make("core2d")
     params = params_for_world(world, params)
     world.close()
-    ctx = RunContext(run_id, "core2d", STEPS, seed, params, out=tmp_path)
-    ctx.extra["snapshot_every"] = SNAPSHOT_EVERY
-    return ctx
+    return RunContext(run_id, "core2d", STEPS, seed, params, out=tmp_path,
+                      snapshot_every=SNAPSHOT_EVERY)
 
 
 class Killer:

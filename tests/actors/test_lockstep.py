@@ -1,4 +1,5 @@
-"""Same knowledge everywhere: the synchronous loop and the actor placements in lockstep."""
+"""Same knowledge everywhere: the synchronous loop, the actor placements in lockstep and the
+terminal UI's local runner."""
 
 from __future__ import annotations
 
@@ -7,11 +8,11 @@ import json
 import pytest
 
 import worlds
-from actors.common import RunContext
 from qlap_runtime import agent_run
 from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.placements.launcher import run_embedded, run_processes
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 
 STEPS = 3000
 BASE = Params(babble_steps=1500, dbn_period=500, landmark_period=1000)
@@ -28,11 +29,33 @@ def context(tmp_path, world_spec: str, params: Params, seed: int, run_id: str) -
     return RunContext(run_id, world_spec, STEPS, seed, params, out=tmp_path)
 
 
-@pytest.mark.parametrize("lag", [0, 200])
-def test_embedded_lockstep_equals_the_synchronous_loop(tmp_path, lag):
+def run_local(ctx: RunContext) -> dict:
+    """The terminal UI's local runner (``tui/driver.py``: the agent in a thread, obeying the
+    same runner contract as the executor) over the run, writing its outputs to ``ctx.out``."""
+    from tui.driver import LocalDriver
+
+    world = worlds.make(ctx.world)
+    d = LocalDriver(world, seed=ctx.seed, params=ctx.params, steps=ctx.steps, out=ctx.out,
+                    run_id=ctx.run_id, world_spec=ctx.world)
+    try:
+        d.start()
+        while not d.finished and d.error is None and d.alive:
+            d.wait(0.1)
+        assert d.finished and d.error is None
+    finally:
+        d.stop()
+        world.close()
+    return {"steps": d.steps_done, "rejected_messages": d.counter.snapshot().total}
+
+
+@pytest.mark.parametrize(("placement", "lag"),
+                         [("embedded", 0), ("embedded", 200), ("local", 200)])
+def test_embedded_lockstep_and_the_local_runner_equal_the_synchronous_loop(tmp_path,
+                                                                          placement, lag):
     params = BASE.replace(batch_lag=lag)
     expected = sync_knowledge("core2d", params, seed=3)
-    summary = run_embedded(context(tmp_path, "core2d", params, 3, f"t-emb-{lag}"))
+    ctx = context(tmp_path, "core2d", params, 3, f"t-{placement}-{lag}")
+    summary = run_embedded(ctx) if placement == "embedded" else run_local(ctx)
     got = (tmp_path / "knowledge.json").read_text()
     assert json.loads(got)["dbns"], "nothing was learned: the comparison would be empty"
     assert got == expected

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from actors.common import RunContext
 from qlap_runtime.placements.launcher import run_embedded
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 
 PARAMS = Params(babble_steps=300, dbn_period=200, landmark_period=400)
 
@@ -12,7 +12,7 @@ PARAMS = Params(babble_steps=300, dbn_period=200, landmark_period=400)
 def test_realtime_ticks_at_the_rate_and_reports_its_lateness(tmp_path):
     steps, hz = 600, 100.0
     ctx = RunContext("rt-test", "core2d", steps, 0, PARAMS, out=tmp_path,
-                     extra={"clock": "realtime", "hz": hz})
+                     clock="realtime", hz=hz)
     s = run_embedded(ctx)
     assert s["clock"] == "realtime"
     assert s["steps"] == steps

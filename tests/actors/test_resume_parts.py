@@ -30,8 +30,8 @@ def _resumed(ckpt, steps: int, out) -> str:
 
 def _check(tmp_path, placement: str, seed: int) -> None:
     expected = sync_knowledge(BASE, seed)
-    ctx = context(tmp_path / "run", BASE, seed, f"t-parts-{placement}")
-    ctx.checkpoint_every = 1000
+    ctx = context(tmp_path / "run", BASE, seed, f"t-parts-{placement}").with_(
+        checkpoint_every=1000)
     (run_embedded if placement == "embedded" else run_processes)(ctx)
     assert (tmp_path / "run" / "knowledge.json").read_text() == expected
     ckpt = tmp_path / "run" / "checkpoints" / "step-0002000"

@@ -10,13 +10,13 @@ import json
 import trio
 
 import worlds
-from actors.common import MAX_PENDING_BYTES, StepInbox
-from actors.rules import delta_rule, motor_rule, op_problem
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import RejectionCounter, TrioSubscriber
 from qlap_runtime.bus.schema import Control, DeltaMsg, Motor, QState, Sense, encode
 from qlap_runtime.placements.launcher import run_embedded_async
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.inbox import MAX_PENDING_BYTES, StepInbox
+from qlap_runtime.runtime.rules import delta_rule, motor_rule, op_problem
 from tests.actors.test_lockstep import STEPS, context, sync_knowledge
 
 PARAMS = Params(babble_steps=1500, dbn_period=500, landmark_period=1000)

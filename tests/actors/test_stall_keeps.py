@@ -36,8 +36,7 @@ def test_a_stalled_embedded_run_writes_a_final_checkpoint(tmp_path, monkeypatch)
 
     monkeypatch.setattr(launcher, "_run_actor", stuck_contingency)
     out = tmp_path / "run"
-    ctx = context(out, BASE, 3, "t-stall-keep")
-    ctx.extra["stall_s"] = 3
+    ctx = context(out, BASE, 3, "t-stall-keep").with_(stall_s=3)
     with pytest.raises(BaseException) as err:   # noqa: PT011 - RunStalled, maybe in a group
         launcher.run_embedded(ctx)
     leaf = err.value

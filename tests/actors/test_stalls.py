@@ -43,8 +43,7 @@ class TwoKills:
 
 def test_executor_then_contingency_killed_around_a_snapshot_end_as_the_sync_loop(tmp_path):
     expected = sync_knowledge(BASE, seed=7)
-    ctx = context(tmp_path, BASE, 7, "t-two-kills")
-    ctx.extra["stall_s"] = 20
+    ctx = context(tmp_path, BASE, 7, "t-two-kills").with_(stall_s=20)
     kills = TwoKills()
     t0 = time.monotonic()
     summary = run_processes(ctx, on_poll=kills)
@@ -61,8 +60,7 @@ def test_executor_then_contingency_killed_around_a_snapshot_end_as_the_sync_loop
 @pytest.mark.slow
 def test_a_stopped_actor_is_a_stall_named_in_one_line_in_bounded_time(tmp_path):
     """SIGSTOP (alive, no progress): the supervisor sees no step for stall_s and stops."""
-    ctx = context(tmp_path, BASE, 7, "t-stall")
-    ctx.extra["stall_s"] = 4
+    ctx = context(tmp_path, BASE, 7, "t-stall").with_(stall_s=4)
     stopped: list[float] = []
 
     def freeze(sup: Supervisor) -> None:

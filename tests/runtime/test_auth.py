@@ -14,7 +14,6 @@ import pytest
 import trio
 import zenoh
 
-from actors.common import RunContext
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.auth import CREDENTIALS_FILE, read_credentials
 from qlap_runtime.bus.bridge import RejectionCounter, TrioSubscriber
@@ -22,6 +21,7 @@ from qlap_runtime.bus.config import client_config
 from qlap_runtime.bus.schema import Control, Motor, encode
 from qlap_runtime.placements.launcher import free_port, run_embedded_async, run_processes
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 
 PARAMS = Params(babble_steps=1000, dbn_period=500, landmark_period=1000)
 

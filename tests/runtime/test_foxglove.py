@@ -15,7 +15,6 @@ from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from mcap.reader import make_reader
 
 import worlds
-from actors.common import RunContext
 from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.auth import CREDENTIALS_FILE, read_credentials
@@ -26,6 +25,7 @@ from qlap_runtime.bus.recorder import read_mcap, read_metadata, record
 from qlap_runtime.bus.schema import AgentStatus, Sense
 from qlap_runtime.placements.launcher import run_embedded, run_embedded_async
 from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
 
 from .conftest import free_port
 

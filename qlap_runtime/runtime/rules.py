@@ -7,7 +7,7 @@ world does not have, a delta at a step that is no batch step of its kind or whos
 name unknown variables or are malformed. Each rule returns the reason (a string) or None; the
 consumer counts and logs a rejected message (``RejectionCounter.reject``) and drops it, so it
 never reaches the physics or the algorithm. The step window and the bound on pending messages
-are the inboxes' (``actors/common.py``, ``StepInbox``, ``DeltaInbox``).
+are the inboxes' (:mod:`.inbox`).
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import numbers
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from qlap_runtime.qlap.params import Params
-from qlap_runtime.runtime.lockstep import batch_kinds
+from ..qlap.params import Params
+from .lockstep import batch_kinds
 
 Rule = Callable[[Any], str | None]
 

@@ -1,0 +1,66 @@
+"""Bus messages ↔ the algorithm's objects: ``qstate`` ↔ :class:`Percept`, and the executor's
+state a batch reads (``batchctx``, §6.2.1)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from qlap_runtime.bus.schema import BatchContext, QState
+from qlap_runtime.qlap.perception import Percept
+from qlap_runtime.qlap.variables import Event, VariableTable
+
+
+class QStateCodec:
+    """``qstate`` messages of one variable table: names in table order, built once."""
+
+    def __init__(self, table: VariableTable) -> None:
+        self.names = tuple(v.name for v in sorted(table, key=lambda v: v.index))
+        self.index = {name: i for i, name in enumerate(self.names)}
+
+    def message(self, p: Percept) -> QState:
+        """The perception actor's message of a percept (a NaN: not yet known, left out)."""
+        names = self.names
+        x = {k: v for k, v in zip(names, p.x.tolist(), strict=True) if v == v}
+        q = {k: v for k, v in zip(names, p.q.tolist(), strict=True) if v >= 0}
+        events = tuple((names[e.var], int(e.value), int(e.direction)) for e in p.events)
+        return QState(p.step, q, events, x, discontinuity=p.discontinuity)
+
+    def percept(self, msg: QState) -> Percept:
+        """The perception actor's :class:`Percept`, rebuilt from its message."""
+        index = self.index
+        x = self._vector(msg.x, np.nan, float)
+        q = self._vector(msg.values, -1, np.int64)
+        events = tuple(Event(index[name], int(v), int(d)) for name, v, d in msg.events)
+        return Percept(msg.step, x, q, events, np.zeros(0, dtype=np.int64), msg.discontinuity)
+
+    def _vector(self, by_name: dict, missing: Any, dtype: Any) -> np.ndarray:
+        """``by_name`` in table order; absent names get ``missing``. The common case (every
+        variable, in table order, as :meth:`message` writes them) is one C-level conversion;
+        otherwise each name is placed by index (an unknown name raises KeyError)."""
+        names = self.names
+        if len(by_name) == len(names) and tuple(by_name) == names:
+            return np.fromiter(by_name.values(), dtype=dtype, count=len(names))
+        out = np.full(len(names), missing, dtype=dtype)
+        if by_name:
+            out[[self.index[k] for k in by_name]] = list(by_name.values())
+        return out
+
+
+def batch_context(agent: Any, step: int) -> BatchContext:
+    """What the batch after ``step`` reads of the executor's agent (§6.2.1): the sufficiently
+    reliable actions and the DBNs that are plans."""
+    learner = agent.learner
+    return BatchContext(step, tuple(sorted((int(v), int(q))
+                                           for v, q in learner.reliable_actions)),
+                        tuple(sorted(int(i) for i, d in learner.dbns.items() if d.is_plan)))
+
+
+def apply_batch_context(learner: Any, msg: BatchContext) -> None:
+    """Give a batch actor's learner the executor's state that its next batch reads, as the
+    synchronous loop's learner has it (the agent sets it there)."""
+    learner.reliable_actions = {(v, q) for v, q in msg.reliable_actions}
+    plans = set(msg.plan_dbns)
+    for dbn_id, dbn in learner.dbns.items():
+        dbn.is_plan = dbn_id in plans

@@ -1,0 +1,240 @@
+"""The actor skeleton: what every actor of a run shares, so that an actor reads
+receive → algorithm → publish (docs/runtime.md).
+
+An :class:`Actor` owns, for one actor of one run:
+
+- **liveness**: its token ``qlap/<run>/alive/<name>``, declared once every subscription of the
+  actor exists (:meth:`Actor.start`), and its line on the watchdog's board (:attr:`slot`);
+- **inputs**: step inboxes of its input topics (:meth:`Actor.input`), the delta inbox
+  (:meth:`Actor.deltas`) and the run's controls with the world's end marker (:attr:`controls`);
+- **outputs**: publishers that keep a replay log for consumers restarted later
+  (:meth:`Actor.output`);
+- **resume and snapshots**: where it starts (:class:`Resume`, from the supervisor's restart
+  fields of the run context), the replay of what it missed (:meth:`Actor.start`), and its
+  snapshots at the boundaries the run schedules (:meth:`Actor.snapshot_due`,
+  :meth:`Actor.snapshot`), with their statistics in :meth:`Actor.result`.
+
+Use as ``with Actor(session, ctx, name) as actor:``; everything is closed on exit.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import trio
+
+from ..bus import keys
+from ..bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
+from ..bus.replay import ReplayLog, fetch_replay
+from ..bus.schema import Message
+from . import snapshot as snap
+from .context import RunContext
+from .controls import Controls
+from .inbox import DeltaInbox, RunEnded, StepInbox
+from .rules import Rule
+from .watchdog import Slot, slot_of
+
+log = logging.getLogger("qlap.actors")
+
+
+@dataclass
+class Resume:
+    """Where an actor starts: fresh, or restarted by the supervisor (from a snapshot or, when
+    it died before its first one, from the start, with its inputs replayed)."""
+
+    step: int
+    """The last step whose input the state has consumed (``ctx.start - 1`` when fresh)."""
+    path: Path | None = None
+    """The snapshot directory, if any."""
+    state: dict[str, Any] = field(default_factory=dict)
+    """The actor-specific values of the snapshot (see :mod:`~qlap_runtime.runtime.snapshot`)."""
+    restarted: bool = False
+
+    @classmethod
+    def of(cls, ctx: RunContext, actor: str) -> Resume:
+        if not ctx.restarted:
+            return cls(ctx.start - 1)
+        if ctx.resume_from is None:
+            return cls(ctx.start - 1, restarted=True)
+        step, state = snap.read_snapshot(ctx.resume_from, actor)
+        log.info("%s: resuming from the snapshot at step %d", actor, step)
+        return cls(step, ctx.resume_from, state, True)
+
+
+class Output:
+    """One output topic: published, and kept in a replay log for restarted consumers."""
+
+    def __init__(self, session: Any, ctx: RunContext, topic: str) -> None:
+        self.pub = Publisher(session, ctx.run_id, topic)
+        self.log = ReplayLog(session, ctx.run_id, topic, ctx.replay_keep)
+        self.key = keys.key(ctx.run_id, topic)
+
+    def put(self, step: int, msg: Message) -> None:
+        """Publish ``msg`` and log it under ``step``."""
+        self.pub.put(msg)
+        self.log.append(step, msg)
+
+    def close(self) -> None:
+        self.log.close()
+        self.pub.close()
+
+
+class Actor:
+    """One actor's runtime (see the module docstring). ``obey`` keeps the control commands
+    for the actor (world, executor); the others only see the end marker."""
+
+    def __init__(self, session: Any, ctx: RunContext, name: str, *, obey: bool = False) -> None:
+        self.session, self.ctx, self.name = session, ctx, name
+        self.counter = RejectionCounter(name)
+        self.slot: Slot = slot_of(ctx, name)
+        self.resume = Resume.of(ctx, name)
+        self._stack = ExitStack()
+        self.controls = self._stack.enter_context(Controls(session, ctx, self.counter,
+                                                           keep=obey))
+        self.inbox: StepInbox | None = None
+        """The primary input (the first :meth:`input`)."""
+        self._inputs: list[tuple[StepInbox, str]] = []
+        self._deltas: DeltaInbox | None = None
+        self.snapshot_times: list[float] = []
+
+    # ------------------------------------------------------------------------- set-up
+    def input(self, topic: str, *, window: int | None, rule: Rule | None = None,
+              first: int | None = None) -> StepInbox:
+        """A step inbox of ``topic`` from step ``first`` (default: the step after the resume
+        point); ``window``: the lockstep window (ignored under the realtime clock)."""
+        sub = self._stack.enter_context(
+            TrioSubscriber(self.session, keys.key(self.ctx.run_id, topic), counter=self.counter))
+        inbox = StepInbox(sub, first=self.resume.step + 1 if first is None else first,
+                          end=self.controls, slot=self.slot, topic=topic,
+                          counter=self.counter, key=keys.key(self.ctx.run_id, topic),
+                          window=None if self.ctx.realtime else window, rule=rule)
+        self._inputs.append((inbox, topic))
+        if self.inbox is None:
+            self.inbox = inbox
+        return inbox
+
+    def deltas(self, n_vars: int) -> DeltaInbox:
+        """The delta inbox (rules for a world of ``n_vars`` variables)."""
+        self._deltas = DeltaInbox(self.session, self.ctx, self.counter, self.slot, n_vars)
+        self._stack.callback(self._deltas.close)
+        return self._deltas
+
+    def output(self, topic: str) -> Output:
+        """A published topic with its replay log."""
+        out = Output(self.session, self.ctx, topic)
+        self._stack.callback(out.close)
+        return out
+
+    def publisher(self, topic: str) -> Publisher:
+        """A published topic without a replay log (display, the end marker)."""
+        pub = Publisher(self.session, self.ctx.run_id, topic)
+        self._stack.callback(pub.close)
+        return pub
+
+    def restore_log(self, output: Output, entries: list) -> None:
+        """Serve again the ``[step, payload]`` entries a snapshot kept of ``output``'s log."""
+        from ..bus.schema import decode
+
+        for step, payload in entries:
+            output.log.append(int(step), decode(output.key, payload))
+
+    async def start(self) -> None:
+        """Declare the actor alive (every subscription exists) and, when restarted, restore
+        its delta book and fetch what it missed from the writers' replay logs."""
+        self._stack.enter_context(declare_alive(self.session, self.ctx.run_id, self.name))
+        resume = self.resume
+        if not resume.restarted:
+            return
+        if self._deltas is not None and "book" in resume.state:
+            snap.restore_book(self._deltas.book, resume.state["book"])
+        for i, (inbox, topic) in enumerate(self._inputs):
+            got = await inbox.fill_from_replay(self._refill(topic))
+            if i == 0 and self._deltas is not None:
+                await self._deltas.catch_up(self.session, self.ctx, self.counter)
+            first = resume.step + 1
+            if i == 0 and got and first < self.ctx.end and first not in inbox.buf:
+                raise RuntimeError(f"cannot resume at step {first}: the {topic} replay log "
+                                   f"starts at step {min(inbox.buf)}")
+
+    def _refill(self, topic: str) -> Callable[[int], Any]:
+        async def refill(step: int) -> list:
+            return await fetch_replay(self.session, self.ctx.run_id, topic, step,
+                                      counter=self.counter)
+        return refill
+
+    # ------------------------------------------------------------------------- the loop
+    def steps(self) -> range:
+        """The steps this actor still has to take."""
+        return range(self.resume.step + 1, self.ctx.end)
+
+    async def receive(self, t: int) -> Any | None:
+        """The primary input's message of step ``t``; None when the run ended before it."""
+        assert self.inbox is not None
+        try:
+            return await self.inbox.get(t)
+        except RunEnded:                            # quit: the world took no step t
+            return None
+
+    def snapshot_due(self, step: int) -> bool:
+        """True when the actor writes a snapshot at the boundary of ``step``."""
+        ctx = self.ctx
+        return ctx.snapshots is not None \
+            and (step + 1 - ctx.start) % max(1, ctx.snapshot_every) == 0 \
+            and step + 1 < ctx.end
+
+    def snapshot(self, step: int, save: Callable[[Path], Any] | None, **state: Any) -> None:
+        """Write the actor's snapshot at the boundary of ``step`` (synchronously: the state
+        must be the one at ``step``); the delta book goes with it."""
+        t0 = time.perf_counter()
+        book: dict[str, Any] = {}
+        if self._deltas is not None:
+            self._deltas.drain()
+            book = {"book": snap.book_state(self._deltas.book)}
+        assert self.ctx.snapshots is not None
+        snap.write_snapshot(self.ctx.snapshots, self.name, step, {**book, **state}, save)
+        self.snapshot_times.append(time.perf_counter() - t0)
+
+    def oldest_snapshot(self, consumers: tuple[str, ...]) -> int:
+        """The oldest latest-snapshot step among ``consumers`` (``ctx.start - 1`` if one has
+        none): a writer's snapshot keeps its logged messages after it, so that a consumer
+        restarted from that snapshot can fetch them even after the writer itself restarted."""
+        assert self.ctx.snapshots is not None
+        steps = []
+        for actor in consumers:
+            latest = snap.latest_snapshot(self.ctx.snapshots, actor)
+            if latest is None:
+                return self.ctx.start - 1
+            steps.append(latest[0])
+        return min(steps, default=self.ctx.start - 1)
+
+    def result(self, **values: Any) -> dict[str, Any]:
+        """The actor's result: ``values`` with its rejected messages, waits, snapshots."""
+        times = self.snapshot_times
+        out: dict[str, Any] = {"rejected": self.counter.snapshot().total,
+                               "waits": 0 if self._deltas is None else self._deltas.book.waits,
+                               **values, "snapshots": len(times),
+                               "snapshot_max_s": round(max(times, default=0.0), 4)}
+        if self.resume.restarted:
+            out["resumed_from_step"] = self.resume.step
+        return out
+
+    # ------------------------------------------------------------------------- lifecycle
+    def close(self) -> None:
+        self._stack.close()
+
+    def __enter__(self) -> Actor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+async def to_thread(fn: Callable[..., Any], *args: Any) -> Any:
+    """Run a blocking call (a batch, a checkpoint) off the trio thread."""
+    return await trio.to_thread.run_sync(fn, *args)

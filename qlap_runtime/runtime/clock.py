@@ -1,0 +1,178 @@
+"""The world's clocks: when the world may take its next step (docs/architecture.md §2).
+
+Both obey the clock commands of ``control`` between two steps (:class:`~.controls.RunControl`:
+pause, resume, step, speed, quit), waiting while paused without counting it as a stall.
+
+- :class:`LockstepClock`: the world steps as soon as it has the motor of the previous step;
+  ``speed x`` paces it at x steps/s (step s due at t0 + (s − s0)/x, restarted from now after
+  every command, so a pause is never caught up).
+- :class:`RealtimeClock`: the world ticks at a fixed rate (``hz``; ``speed x`` changes it); a
+  tick more than one period late is *missed* (skipped and counted); a motor not back by the
+  next tick is *late* (the previous one is applied again). It records each tick's lateness.
+
+Time is trio's, so the tests run them on ``trio.testing.MockClock``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import trio
+
+from .controls import ControlError, Controls, RunControl
+from .inbox import StepInbox
+from .watchdog import Slot
+
+
+class LockstepClock:
+    """The world's clock in lockstep (see the module docstring)."""
+
+    def __init__(self, controls: Controls, counter: Any, slot: Slot | None = None,
+                 speed: float = 0.0) -> None:
+        self.controls, self.counter = controls, counter
+        self.slot = slot if slot is not None else Slot()
+        self.state = RunControl(speed=speed, default_speed=speed)
+        self.paused_s = 0.0
+        """Wall seconds spent paused (excluded from the step chain's rate)."""
+        self.pace0: tuple[float, int] = (trio.current_time(), 0)
+
+    def start(self, step: int) -> None:
+        """The first step is ``step``, now."""
+        self.rebase(step)
+
+    def rebase(self, step: int) -> None:
+        """The clock restarts at ``step``, now: no catching up."""
+        self.pace0 = (trio.current_time(), step)
+
+    def paced(self) -> bool:
+        """Whether steps are paced (a gate before every step)."""
+        return self.state.speed > 0
+
+    async def before(self, t: int) -> bool:
+        """Wait until step ``t`` may be taken; False: the run was quit."""
+        rc = self.state
+        if self.controls.pending or not rc.may_step or self.paced():
+            return await self._gate(t)
+        return True
+
+    async def motor(self, inbox: StepInbox, t: int) -> Any:
+        """The motor of step ``t`` (waited for)."""
+        return await inbox.get(t)
+
+    def stepped(self) -> None:
+        """A step was taken (uses up a ``step`` budget)."""
+        self.state.stepped()
+
+    async def _gate(self, t: int) -> bool:
+        """Apply the pending controls, then wait while paused or ahead of the pace (a control
+        arriving meanwhile is applied at once)."""
+        rc, rebase = self.state, False
+        while True:
+            for c in self.controls.take():
+                try:
+                    rebase = rc.apply(c) or rebase
+                except ControlError as e:
+                    self.counter.reject(self.controls.key, f"{c.command}: {e}")
+            if rc.quit:
+                return False
+            if not rc.may_step:
+                t0 = time.perf_counter()
+                with self._not_a_stall():
+                    await self.controls.wait()
+                self.paused_s += time.perf_counter() - t0
+                rebase = True
+                continue
+            if rebase:
+                rebase = False
+                self.rebase(t)
+            if not await self._pace(t):
+                continue                            # a control came first
+            return True
+
+    async def _pace(self, t: int) -> bool:
+        """Wait for step ``t``'s turn at the set pace; False if a control came first."""
+        rc = self.state
+        if rc.speed <= 0 or rc.paused:
+            return True
+        deadline = self.pace0[0] + (t - self.pace0[1]) / rc.speed
+        if trio.current_time() >= deadline:
+            return True
+        with self._not_a_stall(), trio.move_on_at(deadline) as pacing:
+            await self.controls.wait()
+        return pacing.cancelled_caught
+
+    def _not_a_stall(self) -> Any:
+        slot = self.slot
+
+        class _Paused:
+            def __enter__(self) -> None:
+                slot.paused(True)               # no progress expected: not a stall
+
+            def __exit__(self, *exc: object) -> None:
+                slot.paused(False)
+        return _Paused()
+
+    def stats(self) -> dict[str, Any]:
+        return {}
+
+
+class RealtimeClock(LockstepClock):
+    """The world's clock at a fixed tick rate (see the module docstring)."""
+
+    def __init__(self, controls: Controls, counter: Any, slot: Slot | None = None,
+                 hz: float = 100.0) -> None:
+        super().__init__(controls, counter, slot, speed=hz)
+        self.period = 1.0 / hz
+        self.tick0 = trio.current_time()
+        self.tick = 0
+        self.missed = 0
+        self.late = 0
+        self.lateness: list[float] = []
+
+    def rebase(self, step: int) -> None:
+        super().rebase(step)
+        self.period, self.tick0, self.tick = 1.0 / self.state.speed, self.pace0[0], 0
+
+    def paced(self) -> bool:
+        return False                                # the ticks pace it
+
+    async def _pace(self, t: int) -> bool:
+        return True
+
+    async def before(self, t: int) -> bool:
+        """Apply controls, then wait for the next tick (skipping those more than one period
+        late); False: the run was quit."""
+        if not await super().before(t):
+            return False
+        deadline = self.tick0 + self.tick * self.period
+        now = trio.current_time()
+        if now > deadline + self.period:
+            skipped = int((now - deadline) // self.period)
+            self.missed += skipped
+            self.tick += skipped
+            deadline = self.tick0 + self.tick * self.period
+        await trio.sleep_until(deadline)
+        self.lateness.append(trio.current_time() - deadline)
+        self.tick += 1
+        return True
+
+    async def motor(self, inbox: StepInbox, t: int) -> Any:
+        """The motor of step ``t`` if it is back by the next tick, else None (late)."""
+        motor = None
+        with trio.move_on_at(self.tick0 + self.tick * self.period):
+            motor = await inbox.get(t)
+        if motor is None:
+            self.late += 1
+        inbox.drop_before(t + 1)                    # motors that came after their deadline
+        return motor
+
+    def stats(self) -> dict[str, Any]:
+        """The summary's tick figures: rate, late and missed ticks, lateness percentiles."""
+        if not self.lateness:
+            return {}
+        ms = sorted(x * 1e3 for x in self.lateness)
+        return {"hz": 1.0 / self.period, "late_ticks": self.late, "missed_ticks": self.missed,
+                "lateness_p50_ms": round(ms[len(ms) // 2], 3),
+                "lateness_p99_ms": round(ms[min(len(ms) - 1, int(len(ms) * 0.99))], 3),
+                "lateness_max_ms": round(ms[-1], 3)}

@@ -1,0 +1,303 @@
+"""Step-indexed inboxes: what an actor receives, in lockstep order (docs/runtime.md).
+
+:class:`StepInbox` hands out one topic's messages by step (``await get(t)``) and
+:class:`DeltaInbox` the knowledge deltas due at a step boundary. Both apply the rules on
+messages (:mod:`.rules`) before anything else, bound what may wait for later steps, drop what a
+restarted writer publishes again, report every wait on the watchdog's board, and, for a
+restarted actor, ask the writers' replay logs again when idle.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Awaitable, Callable
+from contextlib import nullcontext
+from typing import TYPE_CHECKING, Any
+
+import trio
+
+from ..bus import keys
+from ..bus.bridge import RejectionCounter, TrioSubscriber
+from ..bus.replay import fetch_replay
+from ..bus.schema import DeltaMsg
+from .context import RunContext
+from .lockstep import DeltaBook
+from .rules import delta_rule
+from .watchdog import Slot
+
+if TYPE_CHECKING:
+    from .controls import Controls
+
+
+MAX_PENDING_BYTES = 64 * 2**20
+"""Per inbox: the payload bytes of messages received for later steps that may wait there. A
+run's own messages never come near it (a core2d ``qstate`` is ~0.5 kB and the window a few
+thousand steps); a sender flooding valid far-future messages is rejected beyond it."""
+
+REFILL_AFTER_S = 1.0
+"""A restarted actor waiting this long for a step while later steps are buffered asks the
+writer's replay log again (a message put while its subscription was still propagating)."""
+
+
+class StepInbox:
+    """Messages of one topic, indexed by step; ``await get(t)`` returns step t's message.
+
+    Steps below the next one expected are dropped: a writer restarted from a snapshot publishes
+    again the steps after its snapshot, which this consumer may already have consumed.
+    ``refill(step)`` (a restarted actor's fetch from the writer's replay log) fills gaps.
+
+    Rules (docs/runtime.md, "Rules on messages"): a live message more than ``window`` steps
+    after the next step expected (or the last one fetched from a replay log) is outside the
+    lockstep window; ``rule(msg)`` returns why a message cannot be one of the run's; the payload
+    bytes waiting are bounded by ``MAX_PENDING_BYTES``. Such messages are counted and logged by
+    ``counter`` on ``key`` and dropped.
+    """
+
+    def __init__(self, sub: TrioSubscriber, first: int = 0,
+                 refill: Callable[[int], Awaitable[list]] | None = None,
+                 end: Controls | None = None, slot: Slot | None = None,
+                 topic: str = "", *, counter: RejectionCounter | None = None, key: str = "",
+                 window: int | None = None,
+                 rule: Callable[[Any], str | None] | None = None) -> None:
+        self.sub = sub
+        self.counter = counter if counter is not None else RejectionCounter()
+        self.key = key or topic
+        self.window = window
+        self.rule = rule
+        self.high = -1
+        """The last step fetched from a replay log (a restarted actor's window starts there)."""
+        self.sizes: dict[int, int] = {}
+        self.pending_bytes = 0
+        self.slot = slot if slot is not None else Slot()
+        """Where a wait is reported for the watchdog (:mod:`~qlap_runtime.runtime.watchdog`)."""
+        self.topic = topic
+        self.buf: dict[int, Any] = {}
+        self.next = first
+        self.refill = refill
+        self.end = end
+        """The run's controls: :meth:`get` raises :class:`RunEnded` for a step after the last
+        one the world announced (``quit``)."""
+        self.duplicates = 0
+        """Messages dropped because their step was already consumed."""
+
+    def add(self, msg: Any, size: int = 0, live: bool = True) -> bool:
+        """Keep ``msg`` for its step (``size``: its payload bytes; ``live``: from the
+        subscription, not a replay log); False if it was dropped."""
+        step = msg.step
+        if self.rule is not None:                   # first: a forgery is always counted
+            why = self.rule(msg)
+            if why is not None:
+                return self._reject(why)
+        if step < self.next:
+            self.duplicates += 1
+            return False
+        if live:
+            if self.window is not None and step > max(self.next, self.high) + self.window:
+                return self._reject(f"step {step} outside the lockstep window (next "
+                                    f"{self.next}, window {self.window})")
+            if self.pending_bytes + size - self.sizes.get(step, 0) > MAX_PENDING_BYTES:
+                return self._reject(f"step {step}: more than {MAX_PENDING_BYTES} bytes of "
+                                    "messages for later steps pending")
+        self.pending_bytes += size - self.sizes.get(step, 0)
+        self.sizes[step] = size
+        self.buf[step] = msg
+        if not live:
+            self.high = max(self.high, step)
+        return True
+
+    def _reject(self, reason: str) -> bool:
+        self.counter.reject(self.key, reason)
+        return False
+
+    def drain(self) -> None:
+        """Keep every message that has arrived, without waiting."""
+        for r in self.sub.receive_nowait():
+            self.add(r.msg, len(r.payload))
+
+    def latest(self) -> Any | None:
+        """The newest message held, keeping only it (the realtime clock's batch context:
+        the next batch may have no newer one); None when none is held."""
+        self.drain()
+        if not self.buf:
+            return None
+        newest = max(self.buf)
+        for step in [s for s in self.buf if s != newest]:
+            self.drop(step)
+        return self.buf[newest]
+
+    def drop_before(self, step: int) -> None:
+        """Forget the messages of steps before ``step`` (never to be consumed)."""
+        for old in [s for s in self.buf if s < step]:
+            self.drop(old)
+
+    def drop(self, step: int) -> None:
+        """Forget the message of ``step`` (not to be consumed)."""
+        self.buf.pop(step, None)
+        self.pending_bytes -= self.sizes.pop(step, 0)
+
+    async def get(self, step: int, at: int | None = None) -> Any:
+        """Step ``step``'s message (waited for; the wait is on the board, before passing step
+        ``at``, by default ``step``)."""
+        if step not in self.buf:
+            with self.slot.waiting(self.topic, step, at):
+                await self._wait_for(step)
+        self.next = max(self.next, step + 1)
+        self.pending_bytes -= self.sizes.pop(step, 0)
+        return self.buf.pop(step)
+
+    async def _wait_for(self, step: int) -> None:
+        while step not in self.buf:
+            end = self.end
+            if end is not None and end.ended(step):
+                raise RunEnded(end.last_step)       # type: ignore[arg-type]
+            batch: list = []
+            with end.interruptible() if end is not None else nullcontext():
+                if self.refill is None:
+                    batch = await self.sub.receive_batch()
+                else:
+                    with trio.move_on_after(REFILL_AFTER_S):
+                        batch = await self.sub.receive_batch()
+            # A restarted actor idle for REFILL_AFTER_S asks the replay log again: a gap, or
+            # a writer that was itself restarting when this actor first asked (chaos trials).
+            if self.refill is not None and not batch and not (end and end.ended(step)):
+                for msg in await self.refill(step):
+                    self.add(msg, live=False)
+            for r in batch:
+                self.add(r.msg, len(r.payload))
+
+    async def fill_from_replay(self, refill: Callable[[int], Awaitable[list]]) -> int:
+        """Add the writer's logged messages from :attr:`next` on (a restarted consumer, after
+        subscribing); keep ``refill`` for gaps; return how many were added."""
+        self.refill = refill
+        msgs = await refill(self.next)
+        for msg in msgs:
+            self.add(msg, live=False)
+        return len(msgs)
+
+
+class RunEnded(Exception):
+    """The world ended the run early (``quit``): there is no step after :attr:`last_step`."""
+
+    def __init__(self, last_step: int) -> None:
+        super().__init__(f"the run ended after step {last_step}")
+        self.last_step = last_step
+
+
+class DeltaInbox:
+    """Receives ``delta/*`` and hands out those due at a step, in apply order.
+
+    A delta whose turn has passed (already applied here) is ignored: a learner restarted from a
+    snapshot recomputes and publishes again the batches after its snapshot.
+    """
+
+    def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter,
+                 slot: Slot | None = None, n_vars: int | None = None) -> None:
+        self.book = DeltaBook(ctx.params)
+        self.slot = slot if slot is not None else Slot()
+        self.counter = counter
+        self.keys = {k: keys.key(ctx.run_id, f"delta/{k}") for k in ("dbn", "landmarks")}
+        self.rule = None if n_vars is None else delta_rule(ctx.params, n_vars, ctx.realtime)
+        self.window = None if ctx.realtime else ctx.replay_keep
+        self.start = ctx.start
+        self.sizes: dict[tuple[int, str], int] = {}
+        self.pending_bytes = 0
+        self.sub = TrioSubscriber(session, f"{keys.ROOT}/{ctx.run_id}/delta/*", counter=counter)
+        self.wait_s = 0.0
+        self.realtime = ctx.realtime
+        self.stale = 0
+        self.refill: Callable[[], Awaitable[list]] | None = None
+        """Set for a restarted actor (:meth:`catch_up`): fetch the delta logs again."""
+
+    def add(self, msg: DeltaMsg, size: int = 0, live: bool = True) -> None:
+        """Keep a delta until it is due (counted and dropped if it breaks a rule)."""
+        if msg.kind not in ("dbn", "landmarks"):
+            return
+        if self.rule is not None:                   # first: a forgery is always counted
+            why = self.rule(msg)
+            if why is not None:
+                self.counter.reject(self.keys[msg.kind], why)
+                return
+        at = msg.delta["computed_at"]
+        lag = 0 if self.realtime else self.book.params.batch_lag
+        done = at + lag                             # the step at whose boundary it applies
+        if done <= self.book.last:
+            self.stale += 1
+            return
+        key = (at, msg.kind)
+        if live and self.window is not None \
+                and at > max(self.book.last, self.start - 1) + self.window:
+            self.counter.reject(self.keys[msg.kind],
+                                f"delta/{msg.kind} computed at {at}: outside the "
+                                f"lockstep window (last applied step "
+                                f"{self.book.last}, window {self.window})")
+            return
+        if live and self.pending_bytes + size - self.sizes.get(key, 0) > MAX_PENDING_BYTES:
+            self.counter.reject(self.keys[msg.kind],
+                                f"delta/{msg.kind} computed at {at}: more than "
+                                f"{MAX_PENDING_BYTES} bytes of deltas pending")
+            return
+        self.pending_bytes += size - self.sizes.get(key, 0)
+        self.sizes[key] = size
+        self.book.add(msg.kind, msg.to_delta())
+
+    def _popped(self, deltas: list) -> list:
+        for d in deltas:
+            for kind in ("dbn", "landmarks"):
+                self.pending_bytes -= self.sizes.pop((d.computed_at, kind), 0)
+        return deltas
+
+    def take(self, batch: list) -> None:
+        """Keep a batch of received deltas (``TrioSubscriber`` records)."""
+        for r in batch:
+            self.add(r.msg, len(r.payload))
+
+    def drain(self) -> None:
+        """Keep every delta that has arrived, without waiting."""
+        self.take(self.sub.receive_nowait())
+
+    async def catch_up(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> int:
+        """A restarted actor: add every delta the learners' replay logs hold (after
+        subscribing, so none published meanwhile is lost); return how many came back."""
+        async def refill() -> list:
+            return await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
+
+        self.refill = refill
+        msgs = await refill()
+        for msg in msgs:
+            self.add(msg, live=False)
+        return len(msgs)
+
+    async def due(self, step: int) -> list:
+        self.drain()
+        if not self.book.ready(step):
+            self.book.waits += 1
+            t0 = time.perf_counter()
+            while not self.book.ready(step):
+                computed, kind = self.book.missing(step)[0]
+                with self.slot.waiting(f"delta/{kind}", computed, step):
+                    if self.refill is None:
+                        self.take(await self.sub.receive_batch())
+                        continue
+                    # Restarted: idle for REFILL_AFTER_S, ask the learners' replay logs
+                    # again (a learner that was itself restarting when this actor asked).
+                    batch: list = []
+                    with trio.move_on_after(REFILL_AFTER_S):
+                        batch = await self.sub.receive_batch()
+                    self.take(batch)
+                    if not batch:
+                        for msg in await self.refill():
+                            self.add(msg, live=False)
+            self.wait_s += time.perf_counter() - t0
+        return self._popped(self.book.pop_due(step))
+
+    async def due_now(self, step: int, realtime: bool) -> list:
+        """Lockstep: :meth:`due` (waits). Realtime: what has arrived, applied on arrival."""
+        if not realtime:
+            return await self.due(step)
+        self.drain()
+        return self._popped(self.book.arrived_prefix(step))
+
+    def close(self) -> None:
+        self.sub.close()
+
+
