@@ -236,7 +236,7 @@ class Agent:
                     self._remove_plan(pid)
                     continue
                 plan.context_o = ()
-                plan.recount(self.learner.perception.quantize_var, self._sizes())
+                plan.recount(self.learner.perception.quantize_columns, self._sizes())
                 try:
                     changed = self._rebuild(plan, value_maps=value_maps)
                 except PlanTooLarge:
@@ -362,14 +362,15 @@ class Agent:
     def _update_plan_contexts(self) -> None:
         """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4)."""
         sizes = self._sizes()
-        quantize = self.learner.perception.quantize_var
+        perception = self.learner.perception
+        quantize = perception.quantize_columns
         for pid in sorted(self.plans):
             plan = self.plans[pid]
             dbn = self.learner.dbns[plan.dbn_id]
             plan.recount(quantize, sizes)
             cands = [v for v in self.learner._candidates(dbn) if v not in dbn.context]
             before = plan.context_o
-            if plan.update_context(cands, quantize, sizes) and \
+            if plan.update_context(cands, quantize, sizes, perception.landmarks_version) and \
                     plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
                 plan.context_o = before                 # too large a state space: keep C_o
                 plan.recount(quantize, sizes)

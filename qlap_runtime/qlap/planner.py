@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from .actions import PlanStats
-from .context import update_context
+from .context import StoredActivations, update_context
 from .dbn import CHANGE, DBN, ModelStats, context_cells, counts_by_cell, model_stats
 from .mdp import (
     MDPAction,
@@ -86,6 +86,8 @@ class Plan:
         self.usable: Usable | None = None
         self.ever_reliable = False
         """Sticky: brel(o) > θ_SR at some time (§5.4.1); see :meth:`refresh_reliable`."""
+        self._context_unchanged: tuple | None = None
+        """The inputs of the last C_o search that found no change (see update_context)."""
         self._magnitudes = frozenset(v.index for v in table if v.kind is Kind.MAGNITUDE)
         self._nominals = frozenset(v.index for v in table if v.kind is Kind.NOMINAL)
         self._dot_of = {v.source: v.index for v in table if v.kind is Kind.CHANGE}
@@ -227,37 +229,38 @@ class Plan:
     def stats(self) -> ModelStats:
         return model_stats(self.cpt_s, self.cpt_f, len(self.context_o), self.params)
 
-    def recount(self, quantize: Callable[[int, np.ndarray], np.ndarray],
+    def recount(self, quantize_columns: Callable[[np.ndarray, np.ndarray], np.ndarray],
                 sizes: Mapping[int, int] | list[int]) -> None:
+        """The second-order CPT from the stored calls under the current C_o and landmarks."""
         X, ok = self.stored_calls()
         ctx = self.context_o
         n_cells = int(np.prod([sizes[v] for v in ctx])) if ctx else 1
-        cells = context_cells([quantize(v, X[:, v]) for v in ctx], [sizes[v] for v in ctx]) \
+        cells = context_cells(list(quantize_columns(X, ctx).T), [sizes[v] for v in ctx]) \
             if ctx else np.zeros(len(ok), dtype=np.int64)
         self.cpt_s, self.cpt_f = counts_by_cell(cells, ok, n_cells)
 
-    def update_context(self, candidates: list[int], quantize, sizes) -> bool:
-        """Algorithm 3 on the second-order DBN; True if C_o changed (§5.4.2)."""
+    def update_context(self, candidates: list[int], quantize_columns, sizes,
+                       version: object = None) -> bool:
+        """Algorithm 3 on the second-order DBN; True if C_o changed (§5.4.2).
+
+        ``version`` names the quantity spaces (their landmarks): a search that gave "no change"
+        is not repeated while the stored calls, C_o, the candidates and ``version`` stay the
+        same (Algorithm 3 is a function of them alone)."""
+        key = (self.calls, self.context_o, version, tuple(candidates))
+        if version is not None and self._context_unchanged == key:
+            return False
         X, ok = self.stored_calls()
         if not len(ok):
             return False
-        cache: dict[int, np.ndarray] = {}
-
-        def evaluate(ctx: tuple[int, ...]) -> ModelStats:
-            for v in ctx:
-                if v not in cache:
-                    cache[v] = quantize(v, X[:, v])
-            sz = [sizes[v] for v in ctx]
-            cells = context_cells([cache[v] for v in ctx], sz) if ctx else \
-                np.zeros(len(ok), dtype=np.int64)
-            s, f = counts_by_cell(cells, ok, int(np.prod(sz)) if ctx else 1)
-            return model_stats(s, f, len(ctx), self.params)
-
-        new = update_context(self.context_o, candidates, evaluate, self.params)
+        acts = StoredActivations.quantized(X, ok, quantize_columns,
+                                           (*candidates, *self.context_o), sizes, self.params)
+        new = update_context(self.context_o, candidates, acts.evaluate, self.params,
+                             acts.choose)
         if new is None:
+            self._context_unchanged = key
             return False
         self.context_o = new
-        self.recount(quantize, sizes)
+        self.recount(quantize_columns, sizes)
         return True
 
     def rel_state(self, x_cell: int) -> float:
