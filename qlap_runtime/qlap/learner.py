@@ -178,7 +178,7 @@ class ModelLearner:
 
     def _update_magnitude_dbns(self, p: Percept) -> None:
         """§4.5: r± activated when Ẏ → [±] with Y on the near side; resolved on reach or stop."""
-        q = p.q
+        q = p.q.tolist()                      # Python ints: the same tests, faster to read
         for yvar, active in list(self._mag_active.items()):
             dvar = self._dot_of[yvar]
             keep = []
