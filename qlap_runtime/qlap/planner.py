@@ -118,6 +118,8 @@ class Plan:
                         magnitude_vars=self._magnitudes)
         groups = [self.context_o, dbn.context, [ante.var], [self.goal.var]]
         space = PlanStateSpace.from_groups(groups, {v: int(sizes[v]) for g in groups for v in g})
+        if self.space is not None and space == self.space:
+            space = self.space                   # equal: keep the one with its cached arrays
         actions = build_actions(space, spec)
         if space.n_states * len(actions) > self.params.max_plan_entries:
             raise PlanTooLarge(f"plan for DBN {self.dbn_id}: {space.n_states} states × "

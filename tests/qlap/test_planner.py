@@ -184,3 +184,15 @@ def test_a_recount_with_unchanged_inputs_keeps_the_cpt_a_full_recount_gives() ->
     s_before = plan.cpt_s
     plan.recount(quantize, [3, 5, 3], 2)                    # nothing changed: kept as it is
     assert plan.cpt_s is s_before
+
+
+def test_a_rebuild_with_an_equal_space_keeps_the_space_and_its_cached_arrays() -> None:
+    plan, dbn, _ = make_plan()
+    space, q = plan.space, plan.q.copy()
+    assert space is not None
+    vals = space.all_values()
+    changed = plan.build(dbn, [3, 1, 3], rel_half, dbn_rel_state(dbn, [3, 1, 3], 1.0))
+    assert not changed and plan.space is space and plan.space.all_values() is vals
+    assert plan.q.tobytes() == q.tobytes()
+    plan.build(dbn, [5, 1, 3], rel_half, dbn_rel_state(dbn, [5, 1, 3], 1.0))
+    assert plan.space is not space and plan.space.sizes == (5, 3)
