@@ -748,9 +748,9 @@ class Agent:
             dbn = self.learner.dbns[plan.dbn_id]
             excluded.append((dbn.antecedent.var, dbn.antecedent.value) in in_list)
             cell = self._state_cell(dbn.context, q)
-            s = dbn.cpt_s[cell] if 0 <= cell < len(dbn.cpt_s) else 0.0
-            f = dbn.cpt_f[cell] if 0 <= cell < len(dbn.cpt_f) else 0.0
-            rel_rs = (s + prior) / (s + f + 2 * prior)
+            rels = dbn.cell_reliabilities(prior)
+            rel_rs = rels[cell] if 0 <= cell < len(rels) else \
+                (0.0 + prior) / (0.0 + 0.0 + 2 * prior)    # a cell with no counts
             w.append(plan_weight(rel_rs, plan.rel_state(self._state_cell(plan.context_o, q))))
         return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
 

@@ -15,7 +15,15 @@ import numpy as np
 
 from .actions import PlanStats
 from .context import StoredActivations, update_context
-from .dbn import CHANGE, DBN, ModelStats, context_cells, counts_by_cell, model_stats
+from .dbn import (
+    CHANGE,
+    DBN,
+    ModelStats,
+    cell_reliabilities,
+    context_cells,
+    counts_by_cell,
+    model_stats,
+)
 from .mdp import (
     MDPAction,
     PlanSpec,
@@ -279,8 +287,10 @@ class Plan:
         """rel(o, s) from the second-order CPT cell of the state (prior 1)."""
         if not 0 <= x_cell < len(self.cpt_s):
             return self.rel()
-        s, f = self.cpt_s[x_cell], self.cpt_f[x_cell]
-        return float((s + self.params.prior) / (s + f + 2 * self.params.prior))
+        # (s + α) / (s + f + 2α) of the cell, from the per-cell values kept until the CPT
+        # changes (record_call counts every in-place change in ``calls``).
+        return cell_reliabilities(self, self.cpt_s, self.cpt_f, self.calls,
+                                  self.params.prior)[x_cell]
 
 
 class PlanGroups:

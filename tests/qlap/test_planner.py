@@ -196,3 +196,31 @@ def test_a_rebuild_with_an_equal_space_keeps_the_space_and_its_cached_arrays() -
     assert plan.q.tobytes() == q.tobytes()
     plan.build(dbn, [5, 1, 3], rel_half, dbn_rel_state(dbn, [5, 1, 3], 1.0))
     assert plan.space is not space and plan.space.sizes == (5, 3)
+
+
+def test_cached_cell_reliabilities_are_the_scalar_formula_after_every_change() -> None:
+    # The per-cell values (DBN.cell_reliabilities, Plan.rel_state) are kept until a record or
+    # a recount changes the CPT, and equal the formula on one cell's numpy numbers bit for bit.
+    plan, dbn, table = make_plan()
+    rng = np.random.default_rng(2)
+    dbn.cpt_s, dbn.cpt_f = (rng.integers(0, 40, 6).astype(float) for _ in range(2))
+    plan.cpt_s, plan.cpt_f = (rng.integers(0, 9, 3).astype(float) for _ in range(2))
+
+    def check() -> None:
+        for owner, got in ((dbn, dbn.cell_reliabilities(P.prior)),
+                           (plan, [plan.rel_state(c) for c in range(len(plan.cpt_s))])):
+            for c, g in enumerate(got):
+                s, f = owner.cpt_s[c], owner.cpt_f[c]
+                want = float((s + P.prior) / (s + f + 2 * P.prior))
+                assert type(g) is float and np.float64(g).tobytes() == np.float64(want).tobytes()
+
+    for _ in range(20):
+        check()
+        x = rng.uniform(0.0, 1.0, len(table))
+        if rng.random() < 0.5:
+            dbn.record(x, bool(rng.random() < 0.5), int(rng.integers(-1, 6)))
+        else:
+            plan.record_call(x, bool(rng.random() < 0.5), int(rng.integers(-1, 3)))
+        if rng.random() < 0.2:                              # a recount: new arrays
+            dbn.cpt_s, dbn.cpt_f = dbn.cpt_s + 1.0, dbn.cpt_f.copy()
+    assert plan.rel_state(-1) == plan.rel() and plan.rel_state(3) == plan.rel()
