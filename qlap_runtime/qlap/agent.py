@@ -54,7 +54,14 @@ from .mdp import (
 )
 from .params import Params
 from .perception import Percept
-from .planner import Plan, PlanTooLarge, creates_cycle, dbn_rel_state, plan_entries
+from .planner import (
+    Plan,
+    PlanGroups,
+    PlanTooLarge,
+    creates_cycle,
+    dbn_rel_state,
+    plan_entries,
+)
 from .probability import prob_above, success_probability
 from .variables import Kind, VariableTable
 
@@ -236,7 +243,7 @@ class Agent:
                     self._remove_plan(pid)
                     continue
                 plan.context_o = ()
-                plan.recount(self.learner.perception.quantize_var, self._sizes())
+                plan.recount(self.learner.perception.quantize_columns, self._sizes())
                 try:
                     changed = self._rebuild(plan, value_maps=value_maps)
                 except PlanTooLarge:
@@ -362,17 +369,19 @@ class Agent:
     def _update_plan_contexts(self) -> None:
         """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4)."""
         sizes = self._sizes()
-        quantize = self.learner.perception.quantize_var
+        perception = self.learner.perception
+        quantize = perception.quantize_columns
+        version = perception.landmarks_version
         for pid in sorted(self.plans):
             plan = self.plans[pid]
             dbn = self.learner.dbns[plan.dbn_id]
-            plan.recount(quantize, sizes)
+            plan.recount(quantize, sizes, version)
             cands = [v for v in self.learner._candidates(dbn) if v not in dbn.context]
             before = plan.context_o
-            if plan.update_context(cands, quantize, sizes) and \
+            if plan.update_context(cands, quantize, sizes, version) and \
                     plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
                 plan.context_o = before                 # too large a state space: keep C_o
-                plan.recount(quantize, sizes)
+                plan.recount(quantize, sizes, version)
             plan.refresh_reliable()
 
     def _plan_edges(self) -> set[tuple[ActionKey, ActionKey]]:
@@ -637,28 +646,37 @@ class Agent:
             self.mode = "idle"
 
     def _applicable(self, p: Percept) -> tuple[list[ActionKey], list[float]]:
-        """§6.1.1: actions not achieved now that could be performed, with their IAC weights."""
+        """§6.1.1: actions not achieved now that could be performed, with their IAC weights
+        (none on a discontinuity step, as :meth:`_usable_plans`)."""
         out, weights = [], []
-        by_action: dict[ActionKey, list[Plan]] = {}
-        for plan in self.plans.values():
-            by_action.setdefault(plan.action, []).append(plan)
+        if p.discontinuity:
+            return out, weights
+        groups = self._plan_groups()
         q_list = p.q.tolist()
-        for key in sorted(by_action):
+        known = groups.known(p.q)
+        for key, plans, rows in zip(groups.keys, groups.groups, groups.rows, strict=True):
             if q_list[key[0]] == key[1]:           # achieved now (:meth:`_achieved`)
                 continue
-            plans = self._usable_plans(key, p, by_action[key], q_list)
+            plans = self._from_side(key, [pl for pl, r in zip(plans, rows, strict=True)
+                                          if known[r]], q_list)
             if not plans:
                 continue
             stats = self.actions[key]
             w = self._iac_weight(stats)
             if w is None:                 # fewer than 50 calls: eq. 6.2 with the chosen plan
-                idx = self._pick_plan(plans, p)
+                idx = self._pick_plan(plans, p, q_list)
                 rel_os = None if idx is None else \
-                    plans[idx].rel_state(self._state_cell(plans[idx].context_o, p.q))
+                    plans[idx].rel_state(self._state_cell(plans[idx].context_o, q_list))
                 w = action_weight(stats, rel_os, self.params)
             out.append(key)
             weights.append(w)
         return out, weights
+
+    def _plan_groups(self) -> PlanGroups:
+        """The plans by action (:class:`~.planner.PlanGroups`), kept while they still hold."""
+        groups, self._groups_cache = PlanGroups.for_plans(
+            self.plans, self.__dict__.get("_groups_cache"))
+        return groups
 
     # ------------------------------------------------------------------------------------------
     # the call list (Algorithms 6 and 7)
@@ -688,16 +706,20 @@ class Agent:
         ``p.q.tolist()`` when the caller has it."""
         if p.discontinuity:
             return []        # the state is not fully known (no direction of change is defined)
-        var, q = key
         full = p.q.tolist() if q_list is None else q_list
         known = sorted((pl for pl in plans
                         if pl.space is not None and pl.space.index_from_full(full) is not None),
                        key=lambda pl: pl.id)
+        return self._from_side(key, known, full)
+
+    def _from_side(self, key: ActionKey, plans: list[Plan], q_list: list[int]) -> list[Plan]:
+        """The plans of a(v, q) that reach q from the current side of v (magnitude actions
+        have a plan from each side, §5.3); all of them for other variables."""
+        var, q = key
         if self.table[var].kind is not Kind.MAGNITUDE:
-            return known
-        now = int(p.q[var])
-        side = 1 if now < q else -1
-        return [pl for pl in known if pl.goal.direction == side]
+            return plans
+        side = 1 if q_list[var] < q else -1
+        return [pl for pl in plans if pl.goal.direction == side]
 
     def _o_cell(self, plan: Plan, x: np.ndarray) -> int:
         cell = 0
@@ -709,8 +731,9 @@ class Agent:
             cell = cell * sizes[v] + q
         return cell
 
-    def _state_cell(self, ctx: tuple[int, ...], q: np.ndarray) -> int:
-        """Mixed-radix cell of the current qualitative values of ``ctx`` (−1 if unavailable)."""
+    def _state_cell(self, ctx: tuple[int, ...], q: np.ndarray | list[int]) -> int:
+        """Mixed-radix cell of the current qualitative values of ``ctx`` (−1 if unavailable);
+        ``q`` by variable, an array or (faster) its ``tolist()``."""
         cell = 0
         sizes = self.learner.perception.events.sizes
         for v in ctx:
@@ -720,20 +743,22 @@ class Agent:
             cell = cell * sizes[v] + qv
         return cell
 
-    def _pick_plan(self, plans: list[Plan], p: Percept) -> int | None:
+    def _pick_plan(self, plans: list[Plan], p: Percept,
+                   q_list: list[int] | None = None) -> int | None:
         """§6.1.2: ε-greedy on w = rel(r, s)·rel(o, s); plans whose antecedent action is in
-        the call list are excluded."""
+        the call list are excluded. ``q_list`` is ``p.q.tolist()`` when the caller has it."""
+        q = p.q.tolist() if q_list is None else q_list
         in_list = {f.key for f in self.call_list}
         w, excluded = [], []
         prior = self.params.prior
         for plan in plans:
             dbn = self.learner.dbns[plan.dbn_id]
             excluded.append((dbn.antecedent.var, dbn.antecedent.value) in in_list)
-            cell = self._state_cell(dbn.context, p.q)
-            s = dbn.cpt_s[cell] if 0 <= cell < len(dbn.cpt_s) else 0.0
-            f = dbn.cpt_f[cell] if 0 <= cell < len(dbn.cpt_f) else 0.0
-            rel_rs = (s + prior) / (s + f + 2 * prior)
-            w.append(plan_weight(rel_rs, plan.rel_state(self._state_cell(plan.context_o, p.q))))
+            cell = self._state_cell(dbn.context, q)
+            rels = dbn.cell_reliabilities(prior)
+            rel_rs = rels[cell] if 0 <= cell < len(rels) else \
+                (0.0 + prior) / (0.0 + 0.0 + 2 * prior)    # a cell with no counts
+            w.append(plan_weight(rel_rs, plan.rel_state(self._state_cell(plan.context_o, q))))
         return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
 
     def _call(self, key: ActionKey, p: Percept, practised: bool = False) -> str:

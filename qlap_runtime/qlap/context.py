@@ -7,8 +7,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from .dbn import ModelStats
+import numpy as np
+
+from .dbn import ModelStats, context_cells, counts_by_cell, model_stats
 from .params import Params
+from .probability import binary_entropy_array, dbn_entropy
+
+# Margin between a fast estimate and the exact value (floating-point rounding only).
+_TOL = 1e-9
 
 
 def _brel_gain(new: float | None, old: float | None) -> float:
@@ -96,3 +102,93 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
         if is_model_improvement(r, r1, params):
             return ctx
     return None
+
+
+class StoredActivations:
+    """A model's stored activations quantized once, for Algorithm 3 (all candidates at once):
+    a DBN's (§4.2.1) or a plan's second-order calls (§5.4.2).
+
+    Every count is an exact integer, the statistics of the chosen candidate are computed with
+    :func:`~.dbn.model_stats` on the same counts as the one-candidate-at-a-time evaluation, and
+    the vectorised entropies are only used to short-list the exact ones, so the choices are
+    those of :func:`~.context.update_context`'s default.
+    """
+
+    def __init__(self, Q: np.ndarray, ok: np.ndarray, sizes, params: Params) -> None:
+        """``Q``: the activations' qualitative values (rows = activations, a column per
+        variable, −1 where unknown or not needed); ``ok``: their success labels."""
+        self.Q, self.ok = Q, ok
+        self.okf = ok.astype(float)
+        self.sizes = np.asarray(sizes, dtype=np.int64)
+        self.params = params
+
+    @classmethod
+    def quantized(cls, X: np.ndarray, ok: np.ndarray,
+                  quantize_columns: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                  cols: Sequence[int], sizes, params: Params) -> StoredActivations:
+        """From real-valued activations ``X``: only the columns ``cols`` (the variables that
+        will be evaluated) are quantized."""
+        cols = np.asarray(sorted(set(cols)), dtype=np.int64)
+        Q = np.full((len(X), len(sizes)), -1, dtype=np.int64)
+        Q[:, cols] = quantize_columns(X, cols)
+        return cls(Q, ok, sizes, params)
+
+    def evaluate(self, ctx: tuple[int, ...]) -> ModelStats:
+        sizes = [int(self.sizes[v]) for v in ctx]
+        n_cells = int(np.prod(sizes)) if ctx else 1
+        cells = context_cells([self.Q[:, v] for v in ctx], sizes) if ctx else \
+            np.zeros(len(self.ok), dtype=np.int64)
+        s, f = counts_by_cell(cells, self.ok, n_cells)
+        return model_stats(s, f, len(ctx), self.params)
+
+    def choose(self, ctx: tuple[int, ...], options: list[int],
+               by_entropy: bool) -> tuple[int, ModelStats]:
+        p = self.params
+        Q, sizes = self.Q, self.sizes
+        n, m = len(self.ok), len(ctx)
+        opts = np.asarray(options, dtype=np.int64)
+        ctx_arr = np.asarray(ctx, dtype=np.int64)
+        # Mixed-radix cell of sorted((*ctx, v)) = (lo·|v| + q_v)·P_hi + hi, where lo/hi are the
+        # cells of the context variables below/above v.
+        lo = np.zeros((m + 1, n), dtype=np.int64)
+        hi = np.zeros((m + 1, n), dtype=np.int64)
+        phi = np.ones(m + 1, dtype=np.int64)
+        bad = np.zeros(n, dtype=bool)
+        for i, c in enumerate(ctx):
+            lo[i + 1] = lo[i] * sizes[c] + np.maximum(Q[:, c], 0)
+            bad |= Q[:, c] < 0
+        for i in range(m - 1, -1, -1):
+            hi[i] = np.maximum(Q[:, ctx[i]], 0) * phi[i + 1] + hi[i + 1]
+            phi[i] = phi[i + 1] * sizes[ctx[i]]
+        kv = np.searchsorted(ctx_arr, opts) if m else np.zeros(len(opts), dtype=np.int64)
+        Qo = Q[:, opts]
+        so = sizes[opts]
+        cells = (lo[kv].T * so + np.maximum(Qo, 0)) * phi[kv] + hi[kv].T
+        good = ~(bad[:, None] | (Qo < 0))
+        n_cells = phi[0] * so
+        offs = np.zeros(len(opts), dtype=np.int64)
+        np.cumsum(n_cells[:-1], out=offs[1:])
+        total = int(n_cells.sum())
+        idx = (cells + offs)[good]
+        w = np.broadcast_to(self.okf[:, None], cells.shape)[good]
+        s = np.bincount(idx, weights=w, minlength=total)
+        f = np.bincount(idx, minlength=total).astype(float) - s
+        if by_entropy:
+            tot = s + f
+            seg_tot = np.add.reduceat(tot, offs)
+            pe = (s + p.prior) / (tot + 2.0 * p.prior)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                terms = binary_entropy_array(pe) * (tot / np.repeat(seg_tot, n_cells))
+            approx = np.where(seg_tot > 0, np.add.reduceat(np.nan_to_num(terms), offs), 1.0)
+            short = np.flatnonzero(approx <= approx.min() + _TOL)
+            best = min((dbn_entropy(s[offs[j]:offs[j] + n_cells[j]],
+                                    f[offs[j]:offs[j] + n_cells[j]], p.prior), int(opts[j]), j)
+                       for j in short.tolist())
+            j = best[2]
+        else:
+            rel = (s + p.prior) / (s + f + 2.0 * p.prior)
+            rel = np.where(s >= p.brel_min_successes, rel, -1.0)
+            seg_max = np.maximum.reduceat(rel, offs)
+            j = int(np.lexsort((opts, -seg_max))[0])
+        a, b = int(offs[j]), int(offs[j] + n_cells[j])
+        return int(opts[j]), model_stats(s[a:b], f[a:b], m + 1, p)

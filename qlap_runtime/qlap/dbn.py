@@ -91,11 +91,34 @@ class DBN:
         """Stored activations (oldest first): real states and success labels."""
         return ring_rows(self.act_x, self.act_ok, self.act_head, self.act_n)
 
+    def cell_reliabilities(self, prior: float) -> list[float]:
+        """rel(r, q) = (s_q + α) / (s_q + f_q + 2α) of every CPT cell (eq. B.1, α = β =
+        ``prior``), as Python floats: the values of the formula on the CPT's own numbers.
+
+        Kept until the CPT changes: :meth:`record` counts every in-place change in ``total``,
+        and a recount or a load replaces the arrays (a pure cache, never saved).
+        """
+        return cell_reliabilities(self, self.cpt_s, self.cpt_f, self.total, prior)
+
     def label(self, names: list[str], value_label) -> str:
         """The reference's notation, e.g. ⟨{h_x}: u_x→(300, +inf) ⇒ h_x.dot→+⟩."""
         ctx = ", ".join(names[v] for v in self.context)
         return (f"⟨{{{ctx}}}: {event_label(self.antecedent, names, value_label)} ⇒ "
                 f"{event_label(self.consequent, names, value_label)}⟩")
+
+
+def cell_reliabilities(owner: object, s: np.ndarray, f: np.ndarray, count: int,
+                      prior: float) -> list[float]:
+    """(s + α) / (s + f + 2α) per cell as Python floats, cached on ``owner`` (in its
+    ``_cell_rel`` attribute) while the very arrays ``s`` and ``f``, the counter ``count`` of
+    in-place changes and α are those of the last call. Element-wise the same operations as on
+    one cell's numbers, so each value is bit for bit the scalar formula's."""
+    hit = getattr(owner, "_cell_rel", None)
+    if hit is not None and hit[0] is s and hit[1] is f and hit[2] == count and hit[3] == prior:
+        return hit[4]
+    out = ((s + prior) / (s + f + 2 * prior)).tolist()
+    owner._cell_rel = (s, f, count, prior, out)  # type: ignore[attr-defined]
+    return out
 
 
 def event_label(e: Event, names: list[str], value_label) -> str:

@@ -73,7 +73,9 @@ def cut_gain_bounds(X: np.ndarray, ok: np.ndarray, Q: np.ndarray, n_values: int,
     if n < 2 or V == 0:
         return out, labels
     order = np.argsort(X, axis=0, kind="stable")
-    Qs = np.take_along_axis(Q, order, 0)
+    # Row indices per column (as np.take_along_axis along axis 0, without its overhead).
+    col = np.arange(V)[None, :]
+    Qs = Q[order, col]
     ys = ok.astype(float)[order]
     rows = np.arange(n)[:, None]
     is_start = np.ones(Qs.shape, dtype=bool)
@@ -94,10 +96,10 @@ def cut_gain_bounds(X: np.ndarray, ok: np.ndarray, Q: np.ndarray, n_values: int,
         w = np.ones(Qs.shape) if W is None else W.astype(float)
         cw = np.cumsum(w, axis=0)
         cy = np.cumsum(w * ys, axis=0)
-        base_w = np.take_along_axis(np.vstack([zero, cw]), start, 0)
-        base_y = np.take_along_axis(np.vstack([zero, cy]), start, 0)
-        N = np.take_along_axis(cw, end, 0) - base_w
-        S = np.take_along_axis(cy, end, 0) - base_y
+        base_w = np.vstack([zero, cw])[start, col]
+        base_y = np.vstack([zero, cy])[start, col]
+        N = cw[end, col] - base_w
+        S = cy[end, col] - base_y
         ln = cw - base_w
         ls = cy - base_y
         rn = N - ln

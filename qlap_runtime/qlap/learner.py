@@ -16,14 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from .context import is_model_improvement, update_context
+from .context import StoredActivations, is_model_improvement, update_context
 from .contingency import PairStatistics, WindowLearner
 from .dbn import CHANGE, DBN, MAGNITUDE, ModelStats, context_cells, counts_by_cell, model_stats
 from .delta import Delta, Op, delta_version
 from .landmarks import EventBinner, best_cut, candidate_range, cut_gain_bounds, is_candidate
 from .params import Params
 from .perception import EventIndex, Percept, Perception
-from .probability import binary_entropy_array, dbn_entropy
 from .quantity import Landmark, QuantitySpace
 from .variables import Event, Kind, VariableTable
 
@@ -33,88 +32,6 @@ CHANGE_MINUS, CHANGE_ZERO, CHANGE_PLUS = 0, 1, 2
 # Margin between a fast bound/estimate and the exact value (floating-point rounding only; the
 # estimates differ from the exact values by far less).
 _TOL = 1e-9
-
-
-class _StoredActivations:
-    """One DBN's stored activations quantized once, for Algorithm 3 (all candidates at once).
-
-    Every count is an exact integer, the statistics of the chosen candidate are computed with
-    :func:`~.dbn.model_stats` on the same counts as the one-candidate-at-a-time evaluation, and
-    the vectorised entropies are only used to short-list the exact ones, so the choices are
-    those of :func:`~.context.update_context`'s default.
-    """
-
-    def __init__(self, learner: ModelLearner, dbn: DBN, cols=None) -> None:
-        """``cols``: the variables that will be evaluated (default: all)."""
-        X, ok = dbn.stored()
-        self.X, self.ok = X, ok
-        n_vars = len(learner.table)
-        cols = np.arange(n_vars) if cols is None else np.asarray(sorted(set(cols)), dtype=int)
-        self.Q = np.full((len(X), n_vars), -1, dtype=np.int64)   # only ``cols`` are filled
-        self.Q[:, cols] = learner.perception.quantize_columns(X, cols)
-        self.okf = ok.astype(float)
-        self.sizes = np.asarray(learner.perception.events.sizes, dtype=np.int64)
-        self.params = learner.params
-
-    def evaluate(self, ctx: tuple[int, ...]) -> ModelStats:
-        sizes = [int(self.sizes[v]) for v in ctx]
-        n_cells = int(np.prod(sizes)) if ctx else 1
-        cells = context_cells([self.Q[:, v] for v in ctx], sizes) if ctx else \
-            np.zeros(len(self.ok), dtype=np.int64)
-        s, f = counts_by_cell(cells, self.ok, n_cells)
-        return model_stats(s, f, len(ctx), self.params)
-
-    def choose(self, ctx: tuple[int, ...], options: list[int],
-               by_entropy: bool) -> tuple[int, ModelStats]:
-        p = self.params
-        Q, sizes = self.Q, self.sizes
-        n, m = len(self.ok), len(ctx)
-        opts = np.asarray(options, dtype=np.int64)
-        ctx_arr = np.asarray(ctx, dtype=np.int64)
-        # Mixed-radix cell of sorted((*ctx, v)) = (lo·|v| + q_v)·P_hi + hi, where lo/hi are the
-        # cells of the context variables below/above v.
-        lo = np.zeros((m + 1, n), dtype=np.int64)
-        hi = np.zeros((m + 1, n), dtype=np.int64)
-        phi = np.ones(m + 1, dtype=np.int64)
-        bad = np.zeros(n, dtype=bool)
-        for i, c in enumerate(ctx):
-            lo[i + 1] = lo[i] * sizes[c] + np.maximum(Q[:, c], 0)
-            bad |= Q[:, c] < 0
-        for i in range(m - 1, -1, -1):
-            hi[i] = np.maximum(Q[:, ctx[i]], 0) * phi[i + 1] + hi[i + 1]
-            phi[i] = phi[i + 1] * sizes[ctx[i]]
-        kv = np.searchsorted(ctx_arr, opts) if m else np.zeros(len(opts), dtype=np.int64)
-        Qo = Q[:, opts]
-        so = sizes[opts]
-        cells = (lo[kv].T * so + np.maximum(Qo, 0)) * phi[kv] + hi[kv].T
-        good = ~(bad[:, None] | (Qo < 0))
-        n_cells = phi[0] * so
-        offs = np.zeros(len(opts), dtype=np.int64)
-        np.cumsum(n_cells[:-1], out=offs[1:])
-        total = int(n_cells.sum())
-        idx = (cells + offs)[good]
-        w = np.broadcast_to(self.okf[:, None], cells.shape)[good]
-        s = np.bincount(idx, weights=w, minlength=total)
-        f = np.bincount(idx, minlength=total).astype(float) - s
-        if by_entropy:
-            tot = s + f
-            seg_tot = np.add.reduceat(tot, offs)
-            pe = (s + p.prior) / (tot + 2.0 * p.prior)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                terms = binary_entropy_array(pe) * (tot / np.repeat(seg_tot, n_cells))
-            approx = np.where(seg_tot > 0, np.add.reduceat(np.nan_to_num(terms), offs), 1.0)
-            short = np.flatnonzero(approx <= approx.min() + _TOL)
-            best = min((dbn_entropy(s[offs[j]:offs[j] + n_cells[j]],
-                                    f[offs[j]:offs[j] + n_cells[j]], p.prior), int(opts[j]), j)
-                       for j in short.tolist())
-            j = best[2]
-        else:
-            rel = (s + p.prior) / (s + f + 2.0 * p.prior)
-            rel = np.where(s >= p.brel_min_successes, rel, -1.0)
-            seg_max = np.maximum.reduceat(rel, offs)
-            j = int(np.lexsort((opts, -seg_max))[0])
-        a, b = int(offs[j]), int(offs[j] + n_cells[j])
-        return int(opts[j]), model_stats(s[a:b], f[a:b], m + 1, p)
 
 
 class ModelLearner:
@@ -261,7 +178,7 @@ class ModelLearner:
 
     def _update_magnitude_dbns(self, p: Percept) -> None:
         """§4.5: r± activated when Ẏ → [±] with Y on the near side; resolved on reach or stop."""
-        q = p.q
+        q = p.q.tolist()                      # Python ints: the same tests, faster to read
         for yvar, active in list(self._mag_active.items()):
             dvar = self._dot_of[yvar]
             keep = []
@@ -540,7 +457,10 @@ class ModelLearner:
             key = (dbn.total, dbn.context, version, tuple(cands))
             if getattr(dbn, "_context_unchanged", None) == key:
                 continue
-            acts = _StoredActivations(self, dbn, (*cands, *dbn.context))
+            X, ok = dbn.stored()
+            acts = StoredActivations.quantized(X, ok, self.perception.quantize_columns,
+                                               (*cands, *dbn.context),
+                                               self.perception.events.sizes, self.params)
             new = update_context(dbn.context, cands, acts.evaluate, self.params, acts.choose)
             if new is not None:
                 self._do(("set_context", dbn_id, list(new)))

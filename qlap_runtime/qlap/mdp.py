@@ -143,6 +143,27 @@ class PlanStateSpace:
         object.__setattr__(self, "_all_values", out)
         return out
 
+    def cells(self, ctx: Sequence[int], radices: Sequence[int]) -> np.ndarray:
+        """Per state, the mixed-radix cell of its values of the variables ``ctx`` (each a
+        variable of the space) with radices ``radices`` (e.g. a DBN's CPT cell of the state).
+
+        Computed once per space and arguments and shared: the array is read-only.
+        """
+        key = (tuple(int(v) for v in ctx), tuple(int(n) for n in radices))
+        cache = self.__dict__.get("_cells")
+        if cache is None:
+            cache = {}
+            object.__setattr__(self, "_cells", cache)
+        out = cache.get(key)
+        if out is None:
+            vals = self.all_values()
+            out = np.zeros(self.n_states, dtype=np.int64)
+            for v, n in zip(*key, strict=True):
+                out = out * n + vals[:, self.position(v)]
+            out.flags.writeable = False
+            cache[key] = out
+        return out
+
     def index_from_full(self, full: Sequence[int] | np.ndarray) -> int | None:
         """Plan state of the agent's full qualitative vector (indexed by variable number).
 
@@ -519,23 +540,43 @@ class TransitionModel:
         space = self.space
         rel_a = _rel_actions(rel_action, self.actions)
         rel_r = _rel_states(rel_model, space, space.all_values())
-        p1 = np.zeros((space.n_states, len(self.actions)))
-        for j, (from_model, wrong) in enumerate(recipe):
-            if from_model:
-                p1[:, j] = rel_r
-                if wrong is not None:
-                    p1[wrong, j] = 0.0
-            else:
-                p1[:, j] = rel_a[j]
-        p1[~self.applicable] = 0.0
+        from_model, from_action, wrong_cols, inapplicable = self._p1_columns()
+        # Every column is a copy of rel(r, s) or of its action's rel(a), as in build.
+        p1 = np.empty((space.n_states, len(self.actions)))
+        p1[:, from_model] = rel_r[:, None]
+        p1[:, from_action] = rel_a[from_action]
+        for j, wrong in wrong_cols:
+            p1[wrong, j] = 0.0
+        p1[inapplicable] = 0.0
         p1.flags.writeable = False
         model = TransitionModel(space, self.actions, self.spec, self.next1, p1, self.next2,
                                 self.applicable, self.goal)
         object.__setattr__(model, "_p1_recipe", recipe)
+        object.__setattr__(model, "_p1_cols", self.__dict__["_p1_cols"])
         rewards = self.__dict__.get("_rewards")     # R does not depend on p1
         if rewards is not None:
             object.__setattr__(model, "_rewards", rewards)
+        pairs = self.__dict__.get("_applicable_pairs")
+        if pairs is not None:
+            # The applicable pairs, rewards and next states do not depend on p1 either.
+            key, (flat, _, _, r1, r2, n1, n2) = pairs
+            a1 = p1.ravel()[flat]
+            object.__setattr__(model, "_applicable_pairs",
+                               (key, (flat, a1, 1.0 - a1, r1, r2, n1, n2)))
         return model
+
+    def _p1_columns(self) -> tuple[np.ndarray, np.ndarray, tuple, np.ndarray]:
+        """The recipe of ``p1`` by columns (cached): those from rel(r, s), those from rel(a),
+        the (column, wrong-side rows) zeroed, and the mask of inapplicable pairs."""
+        cached = self.__dict__.get("_p1_cols")
+        if cached is None:
+            recipe = self.__dict__["_p1_recipe"]
+            cached = (np.array([j for j, (m, _) in enumerate(recipe) if m], dtype=np.int64),
+                      np.array([j for j, (m, _) in enumerate(recipe) if not m], dtype=np.int64),
+                      tuple((j, w) for j, (_, w) in enumerate(recipe) if w is not None),
+                      ~self.applicable)
+            object.__setattr__(self, "_p1_cols", cached)
+        return cached
 
     def rewards(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
         """R(s, a, s') of eq. 5.5 for the two next states: (R to next1, R to next2).

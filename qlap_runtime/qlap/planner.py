@@ -14,8 +14,16 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from .actions import PlanStats
-from .context import update_context
-from .dbn import CHANGE, DBN, ModelStats, context_cells, counts_by_cell, model_stats
+from .context import StoredActivations, update_context
+from .dbn import (
+    CHANGE,
+    DBN,
+    ModelStats,
+    cell_reliabilities,
+    context_cells,
+    counts_by_cell,
+    model_stats,
+)
 from .mdp import (
     MDPAction,
     PlanSpec,
@@ -86,6 +94,10 @@ class Plan:
         self.usable: Usable | None = None
         self.ever_reliable = False
         """Sticky: brel(o) > θ_SR at some time (§5.4.1); see :meth:`refresh_reliable`."""
+        self._context_unchanged: tuple | None = None
+        """The inputs of the last C_o search that found no change (see update_context)."""
+        self._recounted: tuple | None = None
+        """The inputs of the last :meth:`recount` (a pure cache, never saved)."""
         self._magnitudes = frozenset(v.index for v in table if v.kind is Kind.MAGNITUDE)
         self._nominals = frozenset(v.index for v in table if v.kind is Kind.NOMINAL)
         self._dot_of = {v.source: v.index for v in table if v.kind is Kind.CHANGE}
@@ -114,6 +126,8 @@ class Plan:
                         magnitude_vars=self._magnitudes)
         groups = [self.context_o, dbn.context, [ante.var], [self.goal.var]]
         space = PlanStateSpace.from_groups(groups, {v: int(sizes[v]) for g in groups for v in g})
+        if self.space is not None and space == self.space:
+            space = self.space                   # equal: keep the one with its cached arrays
         actions = build_actions(space, spec)
         if space.n_states * len(actions) > self.params.max_plan_entries:
             raise PlanTooLarge(f"plan for DBN {self.dbn_id}: {space.n_states} states × "
@@ -227,45 +241,124 @@ class Plan:
     def stats(self) -> ModelStats:
         return model_stats(self.cpt_s, self.cpt_f, len(self.context_o), self.params)
 
-    def recount(self, quantize: Callable[[int, np.ndarray], np.ndarray],
-                sizes: Mapping[int, int] | list[int]) -> None:
-        X, ok = self.stored_calls()
+    def recount(self, quantize_columns: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                sizes: Mapping[int, int] | list[int], version: object = None) -> None:
+        """The second-order CPT from the stored calls under the current C_o and landmarks.
+
+        ``version`` names the quantity spaces (as for :meth:`update_context`): the CPT is left
+        as it is when the last recount had the same calls, C_o, sizes and ``version`` (only
+        :meth:`record_call` changes the CPT in between, and it counts a call)."""
         ctx = self.context_o
+        key = (self.calls, ctx, tuple(int(sizes[v]) for v in ctx), version)
+        if version is not None and self._recounted == key:
+            return
+        X, ok = self.stored_calls()
         n_cells = int(np.prod([sizes[v] for v in ctx])) if ctx else 1
-        cells = context_cells([quantize(v, X[:, v]) for v in ctx], [sizes[v] for v in ctx]) \
+        cells = context_cells(list(quantize_columns(X, ctx).T), [sizes[v] for v in ctx]) \
             if ctx else np.zeros(len(ok), dtype=np.int64)
         self.cpt_s, self.cpt_f = counts_by_cell(cells, ok, n_cells)
+        self._recounted = key
 
-    def update_context(self, candidates: list[int], quantize, sizes) -> bool:
-        """Algorithm 3 on the second-order DBN; True if C_o changed (§5.4.2)."""
+    def update_context(self, candidates: list[int], quantize_columns, sizes,
+                       version: object = None) -> bool:
+        """Algorithm 3 on the second-order DBN; True if C_o changed (§5.4.2).
+
+        ``version`` names the quantity spaces (their landmarks): a search that gave "no change"
+        is not repeated while the stored calls, C_o, the candidates and ``version`` stay the
+        same (Algorithm 3 is a function of them alone)."""
+        key = (self.calls, self.context_o, version, tuple(candidates))
+        if version is not None and self._context_unchanged == key:
+            return False
         X, ok = self.stored_calls()
         if not len(ok):
             return False
-        cache: dict[int, np.ndarray] = {}
-
-        def evaluate(ctx: tuple[int, ...]) -> ModelStats:
-            for v in ctx:
-                if v not in cache:
-                    cache[v] = quantize(v, X[:, v])
-            sz = [sizes[v] for v in ctx]
-            cells = context_cells([cache[v] for v in ctx], sz) if ctx else \
-                np.zeros(len(ok), dtype=np.int64)
-            s, f = counts_by_cell(cells, ok, int(np.prod(sz)) if ctx else 1)
-            return model_stats(s, f, len(ctx), self.params)
-
-        new = update_context(self.context_o, candidates, evaluate, self.params)
+        acts = StoredActivations.quantized(X, ok, quantize_columns,
+                                           (*candidates, *self.context_o), sizes, self.params)
+        new = update_context(self.context_o, candidates, acts.evaluate, self.params,
+                             acts.choose)
         if new is None:
+            self._context_unchanged = key
             return False
         self.context_o = new
-        self.recount(quantize, sizes)
+        self.recount(quantize_columns, sizes, version)
         return True
 
     def rel_state(self, x_cell: int) -> float:
         """rel(o, s) from the second-order CPT cell of the state (prior 1)."""
         if not 0 <= x_cell < len(self.cpt_s):
             return self.rel()
-        s, f = self.cpt_s[x_cell], self.cpt_f[x_cell]
-        return float((s + self.params.prior) / (s + f + 2 * self.params.prior))
+        # (s + α) / (s + f + 2α) of the cell, from the per-cell values kept until the CPT
+        # changes (record_call counts every in-place change in ``calls``).
+        return cell_reliabilities(self, self.cpt_s, self.cpt_f, self.calls,
+                                  self.params.prior)[x_cell]
+
+
+class PlanGroups:
+    """The plans grouped by their action a(v, q) (keys in order, each group's plans by id),
+    with a vectorised test of which plans know their state in a qualitative vector.
+
+    The IAC scan (§6.1.1) looks at every plan at every exploration choice; the groups change
+    only when a plan, its action, goal or space does, so they are kept while :meth:`key_of`
+    of the plans is unchanged (a pure cache, see :meth:`for_plans`).
+    """
+
+    def __init__(self, plans: Mapping[int, Plan]) -> None:
+        by_action: dict[tuple[int, int], list[Plan]] = {}
+        for plan in plans.values():
+            by_action.setdefault(plan.action, []).append(plan)
+        self.keys = sorted(by_action)
+        """The actions with plans, in order."""
+        self.groups = [sorted(by_action[k], key=lambda pl: pl.id) for k in self.keys]
+        """The plans of each action, by id."""
+        flat = [pl for group in self.groups for pl in group]
+        self.rows: list[list[int]] = []
+        """Row of each group's plans in :meth:`known`'s answer."""
+        i = 0
+        for group in self.groups:
+            self.rows.append(list(range(i, i + len(group))))
+            i += len(group)
+        width = max([len(pl.space.vars) for pl in flat if pl.space is not None] + [0])
+        self._vars = np.zeros((len(flat), width), dtype=np.int64)
+        # Padding columns accept any value: lower bound −∞, upper bound +∞ (as int64).
+        self._low = np.full((len(flat), width), np.iinfo(np.int64).min, dtype=np.int64)
+        self._sizes = np.full((len(flat), width), np.iinfo(np.int64).max, dtype=np.int64)
+        self._max_var = np.full(len(flat), -1, dtype=np.int64)
+        self._has_space = np.zeros(len(flat), dtype=bool)
+        for r, pl in enumerate(flat):
+            if pl.space is None:
+                continue
+            n = len(pl.space.vars)
+            self._vars[r, :n] = pl.space.vars
+            self._low[r, :n] = 0
+            self._sizes[r, :n] = pl.space.sizes
+            self._max_var[r] = max(pl.space.vars, default=-1)
+            self._has_space[r] = True
+
+    @staticmethod
+    def key_of(plans: Mapping[int, Plan]) -> tuple:
+        """What the groups are a function of: each plan with its action, goal and space."""
+        return tuple((pl, pl.action, pl.goal, pl.space) for pl in plans.values())
+
+    @classmethod
+    def for_plans(cls, plans: Mapping[int, Plan], cached: tuple | None
+                  ) -> tuple[PlanGroups, tuple]:
+        """The groups of ``plans``, reusing ``cached`` (a previous answer) when its key holds;
+        returns the groups and the ``(key, groups)`` pair to keep for the next call."""
+        key = cls.key_of(plans)
+        if cached is not None and cached[0] == key:
+            return cached[1], cached
+        groups = cls(plans)
+        return groups, (key, groups)
+
+    def known(self, q: np.ndarray) -> list[bool]:
+        """Per row: the plan has a space and :meth:`~.mdp.PlanStateSpace.index_from_full` of
+        ``q`` is not None (every plan variable in ``q`` with a value in 0..size − 1)."""
+        n_full = len(q)
+        ok = self._has_space & (self._max_var < n_full)
+        if n_full and self._vars.shape[1]:
+            vals = np.asarray(q)[np.minimum(self._vars, n_full - 1)]
+            ok &= ((vals >= self._low) & (vals < self._sizes)).all(axis=1)
+        return ok.tolist()
 
 
 def dbn_rel_state(dbn: DBN, sizes, prior: float) -> Callable[[PlanStateSpace], np.ndarray]:
@@ -275,10 +368,7 @@ def dbn_rel_state(dbn: DBN, sizes, prior: float) -> Callable[[PlanStateSpace], n
     rel_cells = (dbn.cpt_s + prior) / (dbn.cpt_s + dbn.cpt_f + 2 * prior)
 
     def rel(space: PlanStateSpace) -> np.ndarray:
-        vals = space.all_values()
-        cell = np.zeros(space.n_states, dtype=np.int64)
-        for v in ctx:
-            cell = cell * int(sizes[v]) + vals[:, space.position(v)]
+        cell = space.cells(ctx, [int(sizes[v]) for v in ctx])
         out = np.full(space.n_states, 0.5)
         ok = cell < len(rel_cells)
         out[ok] = rel_cells[cell[ok]]

@@ -126,7 +126,7 @@ def test_all_candidates_at_once_choose_as_one_at_a_time(learned: ModelLearner):
     """Algorithm 3's vectorised round picks the option and statistics of the default."""
     import copy
 
-    from qlap_runtime.qlap.learner import _StoredActivations
+    from qlap_runtime.qlap.context import StoredActivations
 
     rng = np.random.default_rng(0)
     learner = copy.deepcopy(learned)
@@ -134,7 +134,10 @@ def test_all_candidates_at_once_choose_as_one_at_a_time(learned: ModelLearner):
         if dbn.act_n < 1:
             continue
         dbn.act_ok[: dbn.act_n] = rng.random(dbn.act_n) < 0.5
-        acts = _StoredActivations(learner, dbn)
+        X, ok = dbn.stored()
+        acts = StoredActivations.quantized(X, ok, learner.perception.quantize_columns,
+                                           range(len(learner.table)),
+                                           learner.perception.events.sizes, learner.params)
         ev = learner.evaluator(dbn)
         cands = list(range(len(learner.table)))
         for ctx in [(), *((v,) for v in cands)]:

@@ -599,3 +599,38 @@ def test_grow_q_single_ancestor_matches_the_mean_bit_for_bit() -> None:
             want = (0.0 + x) / 1.0 if np.isfinite(x) else 0.0
             assert np.array([out[s_new, j]]).tobytes() == np.array([want]).tobytes()
     assert np.signbit(q_old[0, 0]) and not np.signbit(out[0, 0])
+
+
+@pytest.mark.parametrize("direction", [+1, -1])
+def test_with_reliabilities_and_its_cached_pairs_match_a_fresh_build(direction: int) -> None:
+    # The cached columns of p1 and the applicable pairs carried from the previous model give
+    # the very arrays a fresh build gives (wrong-side zeros included), and the same Dyna sweep.
+    spec = PlanSpec(goal=Event(Y, 1), antecedent=Event(X, 1, direction),
+                    magnitude_vars=frozenset({X}))
+    space = PlanStateSpace((C, X, Y), (2, 3, 2))
+    actions = build_actions(space, spec)
+    rng = np.random.default_rng(5)
+    old = TransitionModel.build(space, actions, spec, rng.uniform(0.1, 1.0, len(actions)),
+                                rng.uniform(0.0, 1.0, space.n_states))
+    q = np.where(old.applicable, rng.normal(0.0, 3.0, old.applicable.shape), NOT_APPLICABLE)
+    dyna_sweep(q.copy(), old, P)                            # caches the applicable pairs
+    for _ in range(3):
+        rel_a, rel_r = rng.uniform(0.1, 1.0, len(actions)), rng.uniform(0.0, 1.0, space.n_states)
+        new = old.with_reliabilities(rel_a, rel_r)
+        fresh = TransitionModel.build(space, actions, spec, rel_a, rel_r)
+        assert new.p1.tobytes() == fresh.p1.tobytes()
+        for a, b in zip(mdp._applicable_pairs(new, P), mdp._applicable_pairs(fresh, P),
+                        strict=True):
+            assert a.tobytes() == b.tobytes()
+        assert dyna_sweep(q.copy(), new, P).tobytes() == dyna_sweep(q.copy(), fresh, P).tobytes()
+        old = new
+
+
+def test_cells_are_the_mixed_radix_cells_of_the_state_values() -> None:
+    space = PlanStateSpace((4, 0, 2), (3, 2, 5))
+    vals = space.all_values()
+    got = space.cells((2, 4), (5, 3))
+    np.testing.assert_array_equal(got, vals[:, 2] * 3 + vals[:, 0])
+    assert space.cells((2, 4), (5, 3)) is got               # cached per arguments
+    assert not got.flags.writeable
+    np.testing.assert_array_equal(space.cells((), ()), np.zeros(space.n_states))

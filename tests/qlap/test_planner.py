@@ -9,7 +9,7 @@ import pytest
 from qlap_runtime.qlap import Params, VariableTable
 from qlap_runtime.qlap.dbn import CHANGE, DBN
 from qlap_runtime.qlap.mdp import NOT_APPLICABLE, sarsa_reward
-from qlap_runtime.qlap.planner import Plan, dbn_rel_state
+from qlap_runtime.qlap.planner import Plan, PlanGroups, dbn_rel_state
 from qlap_runtime.qlap.variables import Event
 from tests.qlap.toyworld import SPECS
 
@@ -123,3 +123,104 @@ def test_sufficiently_reliable_plan_is_sticky() -> None:
     assert not plan.stats().reliable
     assert plan.refresh_reliable()
     assert plan.plan_stats(100).reliable and plan.plan_stats(100).age == 100
+
+
+def test_plan_groups_agree_with_the_plans_one_by_one() -> None:
+    # Groups by action in key order, plans by id, and known() as index_from_full tells it,
+    # for plans of different spaces (one with C_o, one never built) and vectors with −1 and
+    # out-of-range values.
+    table = VariableTable.from_specs(SPECS)
+    sizes = [3, 3, 3]
+    plans: dict[int, Plan] = {}
+    for pid, (ante, cons, ctx_o) in [(3, (Event(U, 0), Event(XDOT, 2), ())),
+                                     (1, (Event(U, 2), Event(XDOT, 2), (X,))),
+                                     (2, (Event(U, 2), Event(XDOT, 0), ())),
+                                     (0, (Event(U, 0), Event(XDOT, 0), ()))]:
+        dbn = DBN(pid, CHANGE, ante, cons, (), 0, len(table), 200)
+        plan = Plan(pid, dbn, table, P, 0, len(table))
+        plan.context_o = ctx_o
+        if pid != 0:
+            plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), fresh=True)
+        plans[pid] = plan
+    groups, cached = PlanGroups.for_plans(plans, None)
+    assert groups.keys == [(XDOT, 0), (XDOT, 2)]
+    assert [[pl.id for pl in g] for g in groups.groups] == [[0, 2], [1, 3]]
+    rng = np.random.default_rng(0)
+    for q in [*rng.integers(-1, 4, size=(200, 3)), np.array([0, 1]), np.array([], dtype=int)]:
+        known = groups.known(q)
+        for group, rows in zip(groups.groups, groups.rows, strict=True):
+            for pl, r in zip(group, rows, strict=True):
+                want = pl.space is not None and pl.space.index_from_full(q.tolist()) is not None
+                assert known[r] == want
+    assert PlanGroups.for_plans(plans, cached)[0] is groups          # nothing changed
+    dbn2 = DBN(2, CHANGE, Event(U, 2), Event(XDOT, 0), (), 0, len(table), 200)
+    plans[2].build(dbn2, [5, 3, 3], rel_half, dbn_rel_state(dbn2, [5, 3, 3], 1.0))
+    again, _ = PlanGroups.for_plans(plans, cached)
+    assert again is not groups and again.known(np.array([4, 0, 0]))[1]
+
+
+def test_a_recount_with_unchanged_inputs_keeps_the_cpt_a_full_recount_gives() -> None:
+    plan, _, table = make_plan()
+    plan.context_o = (X,)
+    rng = np.random.default_rng(1)
+
+    def quantize(x_rows: np.ndarray, cols) -> np.ndarray:
+        return np.where(np.isnan(x_rows[:, list(cols)]), -1, x_rows[:, list(cols)] > 0.5)
+
+    def fresh(sizes: list[int]) -> tuple[bytes, bytes]:
+        other = Plan(9, DBN(9, CHANGE, Event(U, 2), Event(XDOT, 2), (), 0, len(table), 200),
+                     table, P, 0, len(table))
+        other.call_x, other.call_ok = plan.call_x, plan.call_ok
+        other.call_n, other.call_head, other.context_o = plan.call_n, plan.call_head, (X,)
+        other.recount(quantize, sizes)
+        return other.cpt_s.tobytes(), other.cpt_f.tobytes()
+
+    for sizes, version in [([3, 3, 3], 1), ([3, 3, 3], 1), ([3, 5, 3], 1), ([3, 5, 3], 2)]:
+        for _ in range(int(rng.integers(0, 3))):
+            x = rng.uniform(0.0, 1.0, len(table))
+            plan.record_call(x, bool(rng.random() < 0.5), int(x[X] > 0.5))
+        plan.recount(quantize, sizes, version)
+        assert (plan.cpt_s.tobytes(), plan.cpt_f.tobytes()) == fresh(sizes)
+    s_before = plan.cpt_s
+    plan.recount(quantize, [3, 5, 3], 2)                    # nothing changed: kept as it is
+    assert plan.cpt_s is s_before
+
+
+def test_a_rebuild_with_an_equal_space_keeps_the_space_and_its_cached_arrays() -> None:
+    plan, dbn, _ = make_plan()
+    space, q = plan.space, plan.q.copy()
+    assert space is not None
+    vals = space.all_values()
+    changed = plan.build(dbn, [3, 1, 3], rel_half, dbn_rel_state(dbn, [3, 1, 3], 1.0))
+    assert not changed and plan.space is space and plan.space.all_values() is vals
+    assert plan.q.tobytes() == q.tobytes()
+    plan.build(dbn, [5, 1, 3], rel_half, dbn_rel_state(dbn, [5, 1, 3], 1.0))
+    assert plan.space is not space and plan.space.sizes == (5, 3)
+
+
+def test_cached_cell_reliabilities_are_the_scalar_formula_after_every_change() -> None:
+    # The per-cell values (DBN.cell_reliabilities, Plan.rel_state) are kept until a record or
+    # a recount changes the CPT, and equal the formula on one cell's numpy numbers bit for bit.
+    plan, dbn, table = make_plan()
+    rng = np.random.default_rng(2)
+    dbn.cpt_s, dbn.cpt_f = (rng.integers(0, 40, 6).astype(float) for _ in range(2))
+    plan.cpt_s, plan.cpt_f = (rng.integers(0, 9, 3).astype(float) for _ in range(2))
+
+    def check() -> None:
+        for owner, got in ((dbn, dbn.cell_reliabilities(P.prior)),
+                           (plan, [plan.rel_state(c) for c in range(len(plan.cpt_s))])):
+            for c, g in enumerate(got):
+                s, f = owner.cpt_s[c], owner.cpt_f[c]
+                want = float((s + P.prior) / (s + f + 2 * P.prior))
+                assert type(g) is float and np.float64(g).tobytes() == np.float64(want).tobytes()
+
+    for _ in range(20):
+        check()
+        x = rng.uniform(0.0, 1.0, len(table))
+        if rng.random() < 0.5:
+            dbn.record(x, bool(rng.random() < 0.5), int(rng.integers(-1, 6)))
+        else:
+            plan.record_call(x, bool(rng.random() < 0.5), int(rng.integers(-1, 3)))
+        if rng.random() < 0.2:                              # a recount: new arrays
+            dbn.cpt_s, dbn.cpt_f = dbn.cpt_s + 1.0, dbn.cpt_f.copy()
+    assert plan.rel_state(-1) == plan.rel() and plan.rel_state(3) == plan.rel()
