@@ -376,7 +376,11 @@ async def echo(source: Source, key_expr: str, stop_event: trio.Event, *,
                     out.write(f"{r.key} {text}\n")
                     n += 1
                     if limit is not None and n >= limit:
-                        nursery.cancel_scope.cancel()
                         break
                 out.flush()
+                if limit is not None and n >= limit:
+                    # Leave now: a batch already waiting is returned without a checkpoint,
+                    # so a cancel alone could print it too (one more line than asked).
+                    nursery.cancel_scope.cancel()
+                    break
     return n
