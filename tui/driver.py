@@ -319,12 +319,13 @@ class LocalDriver:
         if self._metrics is not None:
             self._metrics.after_step(t + 1, self.agent)
         if self.out is not None and (t + 1) % self.checkpoint_every == 0:
-            from qlap_runtime.qlap.checkpoint import save_step_checkpoint
+            from qlap_runtime.qlap.checkpoint import save_step_checkpoint, world_state_of
 
             self._last_saved = (self.agent.step_count, self.runner.agent_changes,
                                 save_step_checkpoint(self.agent, self.out / "checkpoints",
                                                      t + 1, self.world_spec,
-                                                     self.keep_checkpoints))
+                                                     self.keep_checkpoints,
+                                                     world_state_of(self.world)))
 
     def write_outputs(self) -> None:
         """``knowledge.json``, ``summary.json``, the metrics log's last line and
@@ -333,7 +334,11 @@ class LocalDriver:
         if self.out is None or self._outputs_written:
             return
         from qlap_runtime.metrics import summary_of
-        from qlap_runtime.qlap.checkpoint import atomic_write_json, save_final_checkpoint
+        from qlap_runtime.qlap.checkpoint import (
+            atomic_write_json,
+            save_final_checkpoint,
+            world_state_of,
+        )
 
         self._outputs_written = True
         agent = self.agent
@@ -347,7 +352,8 @@ class LocalDriver:
         step, changes, path = self._last_saved
         same = path if (step, changes) == (agent.step_count, self.runner.agent_changes) \
             else None
-        save_final_checkpoint(agent, self.out / "checkpoints", self.world_spec, same_as=same)
+        save_final_checkpoint(agent, self.out / "checkpoints", self.world_spec, same_as=same,
+                              world_state=world_state_of(self.world))
         from qlap_runtime.analysis.plot import plot_run_if_possible
 
         plot_run_if_possible(self.out)                   # metrics.png beside the metrics log

@@ -61,6 +61,10 @@ def test_embedded_lockstep_and_the_local_runner_equal_the_synchronous_loop(tmp_p
     assert got == expected
     assert summary["steps"] == STEPS
     assert summary["rejected_messages"] == 0
+    if placement == "local":                # its checkpoints resume exactly (decision 41)
+        from qlap_runtime.qlap.checkpoint import load_world_state
+
+        assert load_world_state(tmp_path / "checkpoints" / "final") is not None
 
 
 def test_processes_lockstep_equals_the_synchronous_loop(tmp_path):
