@@ -252,9 +252,13 @@ class World(abc.ABC):
         The observation maps each sensed variable (magnitude and nominal, not motors) available
         at step 0 to a finite float.
         """
-        self.rng = np.random.default_rng(seed)
+        return self._start(np.random.default_rng(seed))
+
+    def _start(self, rng: np.random.Generator) -> dict[str, float]:
+        """Reset with the generator ``rng`` (a new seed, or a replay's saved start)."""
+        self.rng = rng
         self.step_count = 0
-        self._replay_start = dict(self.rng.bit_generator.state) if self.replayable else None
+        self._replay_start = dict(rng.bit_generator.state) if self.replayable else None
         self._replay_motors = array("d")
         self._in_physics = True
         try:
@@ -447,16 +451,7 @@ class World(abc.ABC):
             raise ValueError(f"{self.name}: the replay holds non-finite motor values")
         rng = np.random.default_rng()
         rng.bit_generator.state = dict(replay["rng"])
-        self.rng = rng
-        self.step_count = 0
-        self._replay_start = dict(rng.bit_generator.state)
-        self._replay_motors = array("d")
-        self._in_physics = True
-        try:
-            obs = self._reset()
-        finally:
-            self._in_physics = False
-        self._begin_stream(obs)
+        self._start(rng)
         for row in motors.reshape(step_count, n).tolist():
             self._advance(self._motor_values(dict(zip(self._motor_names, row, strict=True))))
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 
 import numpy as np
 
@@ -50,6 +50,21 @@ def random_motor(world: World, rng: np.random.Generator) -> dict[str, float]:
             assert v.high is not None
             out[v.name] = float(rng.uniform(v.low, v.high))
     return out
+
+
+def held_motors(world: World, rng: np.random.Generator) -> Iterator[dict[str, float]]:
+    """Motor commands as the agent babbles them: each motor holds a uniform random value for
+    0–``MAX_HOLD`` steps (one command per step, for ever)."""
+    motor = random_motor(world, rng)
+    hold = dict.fromkeys(motor, 0)
+    while True:
+        fresh = random_motor(world, rng)
+        for name in motor:
+            if hold[name] <= 0:
+                motor[name] = fresh[name]
+                hold[name] = int(rng.integers(0, MAX_HOLD + 1))
+            hold[name] -= 1
+        yield dict(motor)
 
 
 def _check_spec(world: World) -> None:
@@ -140,16 +155,9 @@ def _run(world: World, steps: int, seed: int) -> tuple[list[dict[str, float]], l
     _check_obs(world, obs, 0)
     _require(_check_flag(world, 0), f"world {world.name!r}: discontinuity is False after reset")
     trace, flags = [obs], [True]
-    motor = random_motor(world, rng)
-    hold = {name: 0 for name in motor}
+    motors = held_motors(world, rng)
     for t in range(1, steps + 1):
-        fresh = random_motor(world, rng)
-        for name in motor:
-            if hold[name] <= 0:
-                motor[name] = fresh[name]
-                hold[name] = int(rng.integers(0, MAX_HOLD + 1))
-            hold[name] -= 1
-        obs = world.step(motor)
+        obs = world.step(next(motors))
         _require(
             world.step_count == t, f"world {world.name!r}: step_count {world.step_count} != {t}"
         )
@@ -165,28 +173,17 @@ def _check_state(world: World, steps: int, seed: int) -> None:
     where = f"world {world.name!r}"
     rng = np.random.default_rng(seed + 2)
     world.reset(seed=seed)
-    motor = random_motor(world, rng)
-    hold = {name: 0 for name in motor}
-
-    def next_motor() -> dict[str, float]:
-        fresh = random_motor(world, rng)
-        for name in motor:
-            if hold[name] <= 0:
-                motor[name] = fresh[name]
-                hold[name] = int(rng.integers(0, MAX_HOLD + 1))
-            hold[name] -= 1
-        return dict(motor)
-
+    held = held_motors(world, rng)
     half = max(1, steps // 2)
     obs = {}
     for _ in range(half):
-        obs = world.step(next_motor())
+        obs = world.step(next(held))
     try:
         text = json.dumps(world.get_state(), allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise AssertionError(f"{where}: get_state() is not JSON-able: {exc}") from None
     saved_flag = world.discontinuity
-    motors = [next_motor() for _ in range(max(1, steps - half))]
+    motors = [next(held) for _ in range(max(1, steps - half))]
     first = [(world.step(m), world.discontinuity) for m in motors]
     restored = world.set_state(json.loads(text))
     _require(restored == obs and world.discontinuity == saved_flag

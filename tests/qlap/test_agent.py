@@ -515,12 +515,9 @@ def test_a_reliable_action_that_lost_its_plans_learns_again(tmp_path):
     assert any(p.action == up for p in agent.plans.values())
 
 
-def test_on_a_discontinuity_step_no_action_is_applicable():
-    """docs/decisions.md 39: on the step after a jump no direction of change has a value, so a
-    plan whose own state is known (here a(b, true) by ⟨{}: ↑x→(8, +inf) ⇒ b→true⟩, whose space
-    is x and b) would still lead to sub-actions that cannot run: before this rule IAC chose
-    such actions on these steps and their calls failed at once (core: 85 of 86 practice calls
-    of a(T, true) from a 250k agent)."""
+def nominal_goal_agent():
+    """An agent with one plan for a nominal goal: a(b, true) by ⟨{}: ↑x→(8, +inf) ⇒ b→true⟩
+    (its space is x and b, no direction of change); returns (agent, plan, x, b)."""
     from qlap_runtime.qlap.delta import Delta
     from tests.qlap.toyworld import Spec
 
@@ -535,7 +532,16 @@ def test_on_a_discontinuity_step_no_action_is_applicable():
         ("add_dbn", "change", [x, 2, 1], [b, 1, 0], []))))
     agent.step(3, {"x": 1.0, "b": 0.0})
     dbn = next(d for d in agent.learner.dbns.values() if d.consequent.var == b)
-    plan = agent._add_plan(dbn, 3)
+    return agent, agent._add_plan(dbn, 3), x, b
+
+
+def test_on_a_discontinuity_step_no_action_is_applicable():
+    """docs/decisions.md 39: on the step after a jump no direction of change has a value, so a
+    plan whose own state is known (here a(b, true) by ⟨{}: ↑x→(8, +inf) ⇒ b→true⟩, whose space
+    is x and b) would still lead to sub-actions that cannot run: before this rule IAC chose
+    such actions on these steps and their calls failed at once (core: 85 of 86 practice calls
+    of a(T, true) from a 250k agent)."""
+    agent, plan, x, b = nominal_goal_agent()
     assert plan is not None and set(plan.space.vars) == {x, b}
     agent.step(4, {"x": 2.0, "b": 0.0})
     p = agent._last_percept
@@ -553,21 +559,7 @@ def test_a_sub_action_that_fails_as_it_is_called_gets_a_terminal_sarsa_update():
     rule 4: a plan fails when the action its policy chose fails as it is called. a(b, true)'s
     only way, a(x, (8, +inf)), has no plan: its pair's Q moves to the failure's r' = 0,
     Q ← Q + α(0 − Q) = 0.8 Q, and nothing else changes (docs/decisions.md 40)."""
-    from qlap_runtime.qlap.delta import Delta
-    from tests.qlap.toyworld import Spec
-
-    specs = (Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"),
-             Spec("b", "nominal", values=("false", "true")))
-    agent = Agent(specs, PARAMS, seed=1)
-    for t in range(3):
-        agent.step(t, {"x": 1.0, "b": 0.0})
-    x, b = agent.table.index("x"), agent.table.index("b")
-    agent.learner.apply_delta(Delta(1, 2, 2, (
-        ("add_landmark", x, 8.0, 8.0, "dbn", 2, None, None, None),
-        ("add_dbn", "change", [x, 2, 1], [b, 1, 0], []))))
-    agent.step(3, {"x": 1.0, "b": 0.0})
-    dbn = next(d for d in agent.learner.dbns.values() if d.consequent.var == b)
-    plan = agent._add_plan(dbn, 3)
+    agent, plan, x, b = nominal_goal_agent()
     agent.step(4, {"x": 2.0, "b": 0.0})
     p = agent._last_percept
     agent.learning = False                  # no Dyna sweep after the call: Sarsa alone
