@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -149,6 +150,28 @@ def test_termination_by_resource_limits_and_stuck(trained):
     agent.call_list = [f]
     assert agent._next_sub(0, p) == FAIL                 # 5 action calls (§5.2.3)
     agent.call_list = []
+
+
+def test_a_body_moving_at_a_steady_rate_is_stuck_when_nothing_else_changes(trained):
+    """§5.2.3 read on qualitative values (docs/decisions.md 20): a self variable that stays
+    [+] for 10 steps, with the plan's state unchanged, does not count as a change."""
+    agent, _ = trained
+    p = agent._last_percept
+    plan = next(iter(agent.plans.values()))
+    xdot = agent.table.index("x.dot")
+    q = p.q.copy()
+    q[xdot] = 2                                          # [+]: moving, and staying so
+    moving = dataclasses.replace(p, q=q)
+    agent.self_vars = {xdot}
+    f = Frame(plan.action, p.step, plan_id=plan.id)
+    assert not agent._stuck_or_out_of_time(f, plan, moving)   # first look: state recorded
+    f.last_change = p.step - agent.params.stuck_steps + 1
+    assert not agent._stuck_or_out_of_time(f, plan, moving)   # 9 steps: not yet
+    f.last_change = p.step - agent.params.stuck_steps
+    assert agent._stuck_or_out_of_time(f, plan, moving)       # 10 steps at [+]: stuck
+    q2 = q.copy()
+    q2[xdot] = 1                                          # [+] → [0]: a change
+    assert not agent._stuck_or_out_of_time(f, plan, dataclasses.replace(p, q=q2))
 
 
 def test_no_plan_means_the_action_fails_and_goal_mode_moves_randomly():
