@@ -759,8 +759,8 @@ class ModelLearner:
             cells = np.zeros(len(ok), dtype=np.int64)
         dbn.cpt_s, dbn.cpt_f = counts_by_cell(cells, ok, n_cells)
 
-    def _add_landmark(self, var: int, lm: Landmark, dbn_id: int | None, ante: list | None,
-                      ctx: list | None) -> None:
+    def _add_landmark(self, var: int, lm: Landmark, dbn_id: int | None, ante: Event | None,
+                      ctx: tuple[int, ...] | None) -> None:
         space = self.perception.spaces[var]
         if space.interval_of_range(lm.lb, lm.ub) is None and space.landmarks:
             return                                  # overlaps since computed: skip, deterministic
