@@ -9,6 +9,7 @@ import numpy as np
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.schema import QState, encode
+from qlap_runtime.qlap.delta import AddLandmark
 from qlap_runtime.qlap.perception import InvalidObservation, Perception
 from qlap_runtime.qlap.quantity import Landmark
 from qlap_runtime.qlap.variables import VariableTable
@@ -26,12 +27,13 @@ def apply_landmark_ops(per: Perception, deltas) -> None:
     """Mirror the learner's landmark additions (the only ops that change perception)."""
     for delta in deltas:
         for op in delta.ops:
-            if op[0] == "add_landmark":
-                _, var, lb, ub, source, step = op[:6]
-                space = per.spaces[int(var)]
-                if space.landmarks and space.interval_of_range(float(lb), float(ub)) is None:
+            if isinstance(op, AddLandmark):
+                space = per.spaces[int(op.var)]
+                if space.landmarks and space.interval_of_range(float(op.lb),
+                                                               float(op.ub)) is None:
                     continue                     # the learner skips it too
-                per.add_landmark(int(var), Landmark(float(lb), float(ub), int(step), source))
+                per.add_landmark(int(op.var), Landmark(float(op.lb), float(op.ub), int(op.step),
+                                                       op.source))
 
 
 def _as_sent(per: Perception, t: int, msg, exc: InvalidObservation) -> InvalidObservation:

@@ -215,9 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "learning options; the world starts stepping when the others are alive.")
     actor.add_argument("name", choices=("world", "perception", "contingency", "landmarks",
                                         "executor"), help="the actor to run here")
-    from .bus.cli import _connection_args
+    from .bus.cli import connection_args
 
-    _connection_args(actor)
+    connection_args(actor)
     actor.add_argument("--run", required=True, help="run id shared by every actor of the run")
     actor.add_argument("--world", default="core",
                        help="world spec (see qlap worlds), the same for every actor")
@@ -697,7 +697,7 @@ def _cmd_actor(args: argparse.Namespace) -> int:
 
     from .agent_run import params_for_world
     from .bus import keys
-    from .bus.cli import _client
+    from .bus.cli import client_from_args
     from .bus.config import BusConfigError
     from .placements.launcher import run_actor
     from .qlap import Params
@@ -712,7 +712,7 @@ def _cmd_actor(args: argparse.Namespace) -> int:
         if args.babble_steps is not None:
             changes["babble_steps"] = args.babble_steps
         params = params_for_world(world, Params(**changes))
-        config = _client(args)
+        config = client_from_args(args)
     except (ValueError, BusConfigError) as exc:
         print(f"qlap actor: {exc}", file=sys.stderr)
         return 2

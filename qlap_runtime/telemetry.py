@@ -179,7 +179,7 @@ def world_msg(agent: Any, world: Any, width: int = 44, height: int = 14) -> Worl
     values = {k: _finite(v, 0.0) for k, v in obs.items()}
     motor = {k: _finite(v, 0.0) for k, v in agent.motor.items()}
     qualitative: dict[str, str] = {}
-    if agent._last_percept is not None:
+    if agent.last_percept is not None:
         try:
             qualitative = _qualitative_now(agent, {**obs, **agent.motor},
                                            bool(getattr(world, "discontinuity", False)))

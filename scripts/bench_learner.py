@@ -22,7 +22,7 @@ import numpy as np
 from qlap_runtime.qlap import ModelLearner, Params, VariableTable
 from qlap_runtime.qlap.babble import Babbler
 from qlap_runtime.qlap.dbn import CHANGE
-from qlap_runtime.qlap.variables import Event
+from qlap_runtime.qlap.delta import AddDBN, Delta
 from worlds import VariableSpec, VarKind
 
 MOTORS = ("u_x", "u_y", "u_z", "u_UG")
@@ -102,15 +102,16 @@ def bench_250(learner: ModelLearner, step: int) -> float:
         e2 = index.decode(int(cons[rng.integers(len(cons))]))
         if e1.var == e2.var:
             continue
-        dbn = learner._add_dbn(CHANGE, Event(*e1), Event(*e2), ())
-        if dbn is None:
-            continue
+        new_id = learner.next_id
+        learner.apply_delta(Delta(0, step, step, (AddDBN(CHANGE, e1, e2),)))
+        if learner.next_id == new_id:
+            continue                                    # a DBN with these events exists
+        dbn = learner.dbns[new_id]
         n = learner.params.stored_activations
         hx, _ = learner.perception.history()
         rows = rng.integers(len(hx), size=n)
         for r in rows:
             dbn.record(hx[r], bool(rng.random() < 0.6), 0)
-    learner._reindex()
     t0 = clock()
     learner.compute_batch(step + 2000)
     return clock() - t0

@@ -18,6 +18,7 @@ import os
 import signal
 import sys
 from pathlib import Path
+from typing import Any
 
 import trio
 import zenoh
@@ -28,7 +29,8 @@ from .config import BusConfigError, TlsFiles, client_config, config_from_file, r
 BUS_COMMANDS = ("router", "record", "echo")
 
 
-def _connection_args(p: argparse.ArgumentParser) -> None:
+def connection_args(p: argparse.ArgumentParser) -> None:
+    """Add the options that connect a client to a router (``--connect``, credentials, TLS)."""
     p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT",
                    help="router endpoint, e.g. tcp/127.0.0.1:7447 or tls/host:7447 "
                         "(repeatable)")
@@ -43,8 +45,9 @@ def _connection_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tls-key", type=Path, default=None, help="client key (mutual TLS)")
 
 
-def add_bus_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    """Add ``router``, ``record`` and ``echo`` to a subparsers object."""
+def add_bus_commands(sub: Any) -> None:
+    """Add ``router``, ``record`` and ``echo`` to a subparsers object (what
+    ``ArgumentParser.add_subparsers`` returns; argparse names its type only privately)."""
     r = sub.add_parser("router", help="run a Zenoh router for distributed actors",
                        description="Run a Zenoh router (mode router, no scouting) until "
                                    "Ctrl-C. Either --config FILE (JSON5, see "
@@ -60,7 +63,7 @@ def add_bus_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[t
                                      "(JSON with JSON Schemas), a qlap.run metadata record per "
                                      "run, and the world's bodies on /qlap/scene "
                                      "(foxglove.SceneUpdate) for the 3D panel.")
-    _connection_args(rec)
+    connection_args(rec)
     rec.add_argument("--out", type=Path, required=True, help="output .mcap file")
     rec.add_argument("--run", default=None, help="run id to record (default: every run)")
     rec.add_argument("--duration", type=float, default=None,
@@ -73,7 +76,7 @@ def add_bus_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[t
     e = sub.add_parser("echo", help="print the messages on a key expression",
                        description="Print KEY JSON lines for every message on KEY "
                                    "(e.g. 'qlap/**' or 'qlap/RUN/sense').")
-    _connection_args(e)
+    connection_args(e)
     e.add_argument("key", metavar="KEY", help="key expression")
     e.add_argument("--count", type=int, default=None, metavar="N",
                    help="stop after N messages (default: until Ctrl-C)")
@@ -87,7 +90,7 @@ def run_bus_command(args: argparse.Namespace) -> int:
             cfg = (config_from_file(args.config) if args.config is not None
                    else router_config(args.listen or ["tcp/127.0.0.1:7447"]))
             return trio.run(_router, cfg)
-        cfg = _client(args)
+        cfg = client_from_args(args)
         if args.command == "record":
             return trio.run(_record, cfg, args)
         if args.command == "echo":
@@ -125,7 +128,8 @@ def _describe(exc: BaseException, args: argparse.Namespace) -> str:
     return text
 
 
-def _client(args: argparse.Namespace) -> zenoh.Config:
+def client_from_args(args: argparse.Namespace) -> zenoh.Config:
+    """The client configuration that :func:`connection_args`'s options ask for."""
     tls = None
     if args.tls_ca is not None or args.tls_cert is not None:
         tls = TlsFiles(ca=args.tls_ca, certificate=args.tls_cert, private_key=args.tls_key,

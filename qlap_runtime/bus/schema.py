@@ -141,7 +141,7 @@ class DeltaMsg:
         return cls(kind, delta.to_json())
 
     def to_delta(self) -> Delta:
-        """The :class:`Delta` carried (operations as tuples)."""
+        """The :class:`Delta` carried (its operations typed, each field checked)."""
         return Delta.from_json(self.delta)
 
 

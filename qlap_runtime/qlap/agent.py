@@ -376,7 +376,7 @@ class Agent:
             plan = self.plans[pid]
             dbn = self.learner.dbns[plan.dbn_id]
             plan.recount(quantize, sizes, version)
-            cands = [v for v in self.learner._candidates(dbn) if v not in dbn.context]
+            cands = [v for v in self.learner.context_candidates(dbn) if v not in dbn.context]
             before = plan.context_o
             if plan.update_context(cands, quantize, sizes, version) and \
                     plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
@@ -725,7 +725,7 @@ class Agent:
         cell = 0
         sizes = self.learner.perception.events.sizes
         for v in plan.context_o:
-            q = self.learner._value_of(v, x[v])
+            q = self.learner.value_of(v, x[v])
             if q < 0:
                 return -1
             cell = cell * sizes[v] + q
@@ -989,3 +989,28 @@ class Agent:
         k["self"] = sorted(self.table[v].name for v in self.self_vars)
         return k
 
+
+    # ------------------------------------------------------------------------------------------
+    # state (checkpoints): the bookkeeping that no public field holds
+    # ------------------------------------------------------------------------------------------
+    def to_state(self) -> dict[str, Any]:
+        """As JSON, ``seen_applied``: the learner's ``applied_count`` when the plans last
+        followed a batch (:meth:`decide`). Every other part of the agent's state is in public
+        fields (``qlap_runtime/qlap/checkpoint.py`` writes them); :meth:`load_state` is the
+        inverse."""
+        return {"seen_applied": self._seen_applied}
+
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        """Restore :meth:`to_state`'s fields."""
+        self._seen_applied = int(state["seen_applied"])
+
+    def restore_plan(self, plan: Plan) -> None:
+        """Add a plan read from a checkpoint (its DBN in the learner): its state space is built
+        from the DBN as for a new plan; the caller then puts back its Q-table and traces."""
+        self.plans[plan.id] = plan
+        self._rebuild(plan, fresh=True)
+
+    @property
+    def last_percept(self) -> Percept | None:
+        """The percept of the latest step (:meth:`decide`), None before the first."""
+        return self._last_percept

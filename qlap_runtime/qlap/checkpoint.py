@@ -39,7 +39,6 @@ from .dbn import DBN
 from .delta import Delta
 from .learner import ModelLearner
 from .params import Params
-from .quantity import QuantitySpace
 from .variables import Event, VariableTable
 
 FORMAT = "qlap-learner"
@@ -223,17 +222,13 @@ def resolve_checkpoint(path: str | Path) -> Path:
 
 def learner_state(learner: ModelLearner) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The learner's complete state as (JSON object, arrays)."""
-    per = learner.perception
-    arrays: dict[str, np.ndarray] = {
-        "perception.prev_x": per.prev_x, "perception.prev_q": per.prev_q,
-        "perception.hist_x": per.hist_x, "perception.hist_q": per.hist_q}
+    per_meta, per_arrays = learner.perception.to_state()
+    arrays: dict[str, np.ndarray] = {f"perception.{k}": v for k, v in per_arrays.items()}
     pairs_meta, pairs_arrays = learner.pairs.to_state()
     arrays.update({f"pairs.{k}": v for k, v in pairs_arrays.items()})
     dbns = []
-    pos: dict[int, dict[int, int]] = {}
     for dbn_id in sorted(learner.dbns):
         d = learner.dbns[dbn_id]
-        pos[dbn_id] = {id(e): i for i, e in enumerate(d.pending)}
         dbns.append({"id": d.id, "kind": d.kind, "antecedent": list(d.antecedent),
                      "consequent": list(d.consequent), "context": list(d.context),
                      "created": d.created, "ever_reliable": d.ever_reliable,
@@ -245,19 +240,14 @@ def learner_state(learner: ModelLearner) -> tuple[dict[str, Any], dict[str, np.n
         arrays[f"dbn.{dbn_id}.cpt_f"] = d.cpt_f
         if d.pending:
             arrays[f"dbn.{dbn_id}.pending_x"] = np.stack([e[1] for e in d.pending])
-    expiry = [[t, d.id, pos[d.id][id(e)]] for t, d, e in learner._expiry
-              if d.id in pos and id(e) in pos[d.id]]
     meta = {
         "format": FORMAT, "version": VERSION,
         "params": learner.params.to_dict(), "variables": learner.table.to_json(),
         "step": learner.step, "k": learner.k, "k_learned": learner.k_learned,
         "next_id": learner.next_id, "delta_version": learner.version,
-        "perception": {"spaces": [s.to_json() for s in per.spaces],
-                       "hist_len": per.hist_len, "hist_head": per.hist_head,
-                       "steps_seen": per.steps_seen, "all_seen": per._all_seen},
+        "perception": per_meta,
         "pairs": pairs_meta, "window": learner.window.to_state(), "dbns": dbns,
-        "expiry": expiry,
-        "mag_active": [[y, [d.id for d in ds]] for y, ds in learner._mag_active.items()],
+        **learner.to_state(),                       # expiry, mag_active
         "pending_deltas": [dict(d.to_json(), applied=d.applied)
                            for d in learner.pending_deltas],
         "applied": learner.applied, "applied_count": learner.applied_count,
@@ -455,15 +445,8 @@ def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Mode
     params = Params.from_dict(meta["params"])
     learner = ModelLearner(VariableTable.from_json(meta["variables"]), params)
     per = learner.perception
-    per.spaces = [QuantitySpace.from_json(s) for s in meta["perception"]["spaces"]]
-    per._rebuild()
-    per.prev_x = arrays["perception.prev_x"].astype(float)
-    per.prev_q = arrays["perception.prev_q"].astype(np.int64)
-    per.hist_x = arrays["perception.hist_x"].astype(float)
-    per.hist_q = arrays["perception.hist_q"].astype(np.int16)
-    pm = meta["perception"]
-    per.hist_len, per.hist_head = int(pm["hist_len"]), int(pm["hist_head"])
-    per.steps_seen, per._all_seen = int(pm["steps_seen"]), bool(pm["all_seen"])
+    per.load_state(meta["perception"], {k[len("perception."):]: v for k, v in arrays.items()
+                                        if k.startswith("perception.")})
     learner.step, learner.k, learner.k_learned = int(meta["step"]), int(meta["k"]), \
         bool(meta["k_learned"])
     learner.next_id, learner.version = int(meta["next_id"]), int(meta["delta_version"])
@@ -486,10 +469,7 @@ def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Mode
         dbn.pending = [[int(t), px[j].astype(float), bool(res)]
                        for j, (t, res) in enumerate(d["pending"])]
         learner.dbns[i] = dbn
-    learner._expiry = deque((int(t), learner.dbns[int(i)], learner.dbns[int(i)].pending[int(j)])
-                            for t, i, j in meta["expiry"])
-    learner._mag_active = {int(y): [learner.dbns[int(i)] for i in ids]
-                           for y, ids in meta["mag_active"]}
+    learner.load_state(meta)                        # expiry, mag_active; the indexes
     learner.pending_deltas = deque(
         Delta.from_json(d).mark_applied() if d.get("applied") else Delta.from_json(d)
         for d in meta["pending_deltas"])
@@ -497,7 +477,6 @@ def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Mode
     learner.applied_count = int(meta.get("applied_count", 0))
     learner.splits = [(int(a), int(b)) for a, b in meta.get("splits", [])]
     learner.reliable_actions = {(int(a), int(b)) for a, b in meta["reliable_actions"]}
-    learner._reindex()
     return learner
 
 
@@ -572,7 +551,7 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> P
         "iac_log": [ch.to_dict() for ch in agent.iac_log],
         "counters": {k: v for k, v in c.__dict__.items()},
         "self_vars": sorted(agent.self_vars), "step_count": agent.step_count,
-        "seen_applied": agent._seen_applied,
+        **agent.to_state(),                         # seen_applied
     }
     if world is not None:
         meta["world"] = str(world)
@@ -628,8 +607,7 @@ def load_agent(directory: str | Path) -> Any:
             pl.call_ok = arrays[f"plan.{pid}.call_ok"].astype(bool)
             pl.cpt_s = arrays[f"plan.{pid}.cpt_s"].astype(float)
             pl.cpt_f = arrays[f"plan.{pid}.cpt_f"].astype(float)
-            agent.plans[pid] = pl
-            agent._rebuild(pl, fresh=True)
+            agent.restore_plan(pl)
             if "q" in d:                                        # version 1
                 pl.q = q_from_state(d["q"])
             elif f"plan.{pid}.q" in arrays:                    # version 2
@@ -654,7 +632,7 @@ def load_agent(directory: str | Path) -> Any:
         agent.counters = AgentCounters(**meta["counters"])
         agent.self_vars = set(meta["self_vars"])
         agent.step_count = int(meta["step_count"])
-        agent._seen_applied = int(meta["seen_applied"])
+        agent.load_state(meta)                      # seen_applied
     except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
         raise CheckpointError(f"{directory}: inconsistent agent checkpoint "
                               f"({type(exc).__name__}: {exc})") from None

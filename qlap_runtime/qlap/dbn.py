@@ -63,6 +63,8 @@ class DBN:
         self.created = created
         self.ever_reliable = False
         self.is_plan = False
+        self.context_unchanged: tuple | None = None
+        """The learner's cache: the inputs of Algorithm 3's last search that found no change."""
         # Activation store: a ring of the last `capacity` resolved activations.
         self.act_x = np.full((capacity, n_vars), np.nan)
         self.act_ok = np.zeros(capacity, dtype=bool)
@@ -110,14 +112,14 @@ class DBN:
 def cell_reliabilities(owner: object, s: np.ndarray, f: np.ndarray, count: int,
                       prior: float) -> list[float]:
     """(s + α) / (s + f + 2α) per cell as Python floats, cached on ``owner`` (in its
-    ``_cell_rel`` attribute) while the very arrays ``s`` and ``f``, the counter ``count`` of
+    ``cell_rel_cache`` attribute) while the very arrays ``s`` and ``f``, the counter ``count`` of
     in-place changes and α are those of the last call. Element-wise the same operations as on
     one cell's numbers, so each value is bit for bit the scalar formula's."""
-    hit = getattr(owner, "_cell_rel", None)
+    hit = getattr(owner, "cell_rel_cache", None)
     if hit is not None and hit[0] is s and hit[1] is f and hit[2] == count and hit[3] == prior:
         return hit[4]
     out = ((s + prior) / (s + f + 2 * prior)).tolist()
-    owner._cell_rel = (s, f, count, prior, out)  # type: ignore[attr-defined]
+    owner.cell_rel_cache = (s, f, count, prior, out)  # type: ignore[attr-defined]
     return out
 
 

@@ -19,7 +19,17 @@ import numpy as np
 from .context import StoredActivations, is_model_improvement, update_context
 from .contingency import PairStatistics, WindowLearner
 from .dbn import CHANGE, DBN, MAGNITUDE, ModelStats, context_cells, counts_by_cell, model_stats
-from .delta import Delta, Op, delta_version
+from .delta import (
+    AddDBN,
+    AddLandmark,
+    DeleteDBN,
+    Delta,
+    Op,
+    Refresh,
+    SetContext,
+    SetK,
+    delta_version,
+)
 from .landmarks import EventBinner, best_cut, candidate_range, cut_gain_bounds, is_candidate
 from .params import Params
 from .perception import EventIndex, Percept, Perception
@@ -221,13 +231,14 @@ class ModelLearner:
     def _cell_of(self, dbn: DBN, x: np.ndarray) -> int:
         cell = 0
         for v in dbn.context:
-            q = self._value_of(v, x[v])
+            q = self.value_of(v, x[v])
             if q < 0:
                 return -1
             cell = cell * self._size(v) + q
         return cell
 
-    def _value_of(self, var: int, value: float) -> int:
+    def value_of(self, var: int, value: float) -> int:
+        """The qualitative value of real value ``value`` of ``var`` (−1 for NaN)."""
         value = float(value)
         if value != value:                                  # NaN
             return -1
@@ -296,7 +307,7 @@ class ModelLearner:
         try:
             # The sticky "sufficiently reliable" flags are refreshed as the batch's first op,
             # so that every replica refreshes at the same point (§4.2.2).
-            self._do(("refresh",))
+            self._do(Refresh())
             self._learn_dbns(step)
             self._update_contexts()
             self._delete_dbns(step)
@@ -365,7 +376,7 @@ class ModelLearner:
             if not found:
                 return
             k = max(1, round(float(np.mean([kr for _, _, kr in found]))))
-            self._do(("set_k", k))
+            self._do(SetK(k))
             candidates = [(index.decode(e1), index.decode(e2)) for e1, e2, _ in found]
         else:
             theta = np.where(self._targeted(), p.theta_pen_targeted, p.theta_pen)
@@ -377,7 +388,7 @@ class ModelLearner:
                     if d.kind == CHANGE and d.ever_reliable}
         for e1, e2 in sorted(candidates):
             if self._may_add_dbn(e1, e2, reliable):
-                self._do(("add_dbn", CHANGE, list(e1), list(e2), []))
+                self._do(AddDBN(CHANGE, e1, e2))
 
     def _may_add_dbn(self, e1: Event, e2: Event,
                      reliable_cons: set[tuple[int, int]] | None = None) -> bool:
@@ -399,7 +410,7 @@ class ModelLearner:
         return (e1.var, e1.value) in reliable_cons
 
     # -- contexts (Algorithm 3) -----------------------------------------------------------------
-    def _candidates(self, dbn: DBN) -> list[int]:
+    def context_candidates(self, dbn: DBN) -> list[int]:
         """Valid context variables (App. D.1): magnitude with ≥ 1 landmark, or nominal."""
         key = (id(self.perception), self.perception.landmarks_version)
         cached = getattr(self, "_candidate_vars", None)
@@ -450,12 +461,12 @@ class ModelLearner:
             dbn = self.dbns[dbn_id]
             if dbn.act_n < 1:
                 continue
-            cands = self._candidates(dbn)
+            cands = self.context_candidates(dbn)
             # Algorithm 3 is a function of the stored activations (changed only by record(),
             # which counts dbn.total), the context, the quantity spaces and the candidates: a
             # DBN whose search gave "no change" with the same inputs gives it again.
             key = (dbn.total, dbn.context, version, tuple(cands))
-            if getattr(dbn, "_context_unchanged", None) == key:
+            if dbn.context_unchanged == key:
                 continue
             X, ok = dbn.stored()
             acts = StoredActivations.quantized(X, ok, self.perception.quantize_columns,
@@ -463,9 +474,9 @@ class ModelLearner:
                                                self.perception.events.sizes, self.params)
             new = update_context(dbn.context, cands, acts.evaluate, self.params, acts.choose)
             if new is not None:
-                self._do(("set_context", dbn_id, list(new)))
+                self._do(SetContext(dbn_id, new))
             else:
-                dbn._context_unchanged = key
+                dbn.context_unchanged = key
 
     def _delete_dbns(self, step: int) -> None:
         """§6.2.3 (old, never deterministic, not a plan) and §6.2.1 item 4."""
@@ -476,7 +487,7 @@ class ModelLearner:
             old = step - dbn.created > self.params.dbn_max_age and not dbn.ever_reliable
             done = (dbn.consequent.var, dbn.consequent.value) in self.reliable_actions
             if old or done:
-                self._do(("delete_dbn", dbn_id))
+                self._do(DeleteDBN(dbn_id))
 
     # -- landmarks on events (Algorithm 5) --------------------------------------------------
     def _learn_event_landmarks(self, step: int) -> None:
@@ -529,7 +540,7 @@ class ModelLearner:
                 continue
             used_vq.add((var, q))
             used_e.add(eid)
-            self._do(("add_landmark", var, lb, ub, "event", step, None, None, None))
+            self._do(AddLandmark(var, lb, ub, "event", step))
 
     # -- landmarks on DBNs (Algorithm 4) ----------------------------------------------------
     def _prob_interval(self, var: int, space: QuantitySpace) -> np.ndarray:
@@ -623,7 +634,7 @@ class ModelLearner:
             if (var, q) in used or self._fit_resolution(var, lb, ub) != (lb, ub):
                 continue                        # D.2 item 3; or too close to one just added
             used.add((var, q))
-            self._do(("add_landmark", var, lb, ub, "dbn", step, dbn_id, ante, ctx))
+            self._do(AddLandmark(var, lb, ub, "dbn", step, dbn_id, ante, ctx))
 
     def _fit_resolution(self, var: int, lb: float, ub: float) -> tuple[float, float] | None:
         """A candidate landmark at the variable's resolution (docs/decisions.md): widened about
@@ -679,35 +690,34 @@ class ModelLearner:
     # applying operations (shared by the batch and by delayed deltas)
     # ------------------------------------------------------------------------------------------
     def _apply_op(self, op: Op) -> None:
-        kind = op[0]
-        if kind == "refresh":
-            self._refresh_reliability()
-            return
-        if kind == "set_k":
-            self.k = int(op[1])
-            self.k_learned = True
-            self.pairs.k = self.k
-            self.pairs.reset(self.perception.events)
-        elif kind == "add_dbn":
-            _, dkind, e1, e2, ctx = op
-            self._add_dbn(dkind, Event(*e1), Event(*e2), tuple(ctx))
-        elif kind == "set_context":
-            dbn = self.dbns.get(int(op[1]))
-            if dbn is not None:
-                dbn.context = tuple(op[2])
-                self._recount(dbn)
-        elif kind == "delete_dbn":
-            self._delete(int(op[1]))
-        elif kind == "add_landmark":
-            _, var, lb, ub, source, step, dbn_id, ante, ctx = op
-            self._add_landmark(int(var), Landmark(float(lb), float(ub), int(step), source),
-                               dbn_id, ante, ctx)
-        else:
-            raise ValueError(f"unknown delta operation {kind!r}")
+        match op:
+            case Refresh():
+                self._refresh_reliability()
+                return
+            case SetK(k=k):
+                self.k = int(k)
+                self.k_learned = True
+                self.pairs.k = self.k
+                self.pairs.reset(self.perception.events)
+            case AddDBN(kind=dkind, antecedent=e1, consequent=e2, context=ctx):
+                self._add_dbn(dkind, e1, e2, ctx)
+            case SetContext(dbn_id=dbn_id, context=ctx):
+                dbn = self.dbns.get(int(dbn_id))
+                if dbn is not None:
+                    dbn.context = ctx
+                    self._recount(dbn)
+            case DeleteDBN(dbn_id=dbn_id):
+                self._delete(int(dbn_id))
+            case AddLandmark(var=var, lb=lb, ub=ub, source=source, step=step, dbn_id=dbn_id,
+                             antecedent=ante, context=ctx):
+                self._add_landmark(int(var), Landmark(float(lb), float(ub), int(step), source),
+                                   dbn_id, ante, ctx)
+            case _:
+                raise ValueError(f"unknown delta operation {op!r}")
         # The event indexes are only read per step: rebuilt once, before the next step. The set
         # of (antecedent, consequent) pairs is kept exact after every operation (add_dbn adds to
         # it; a landmark may remap events and a deletion may leave a duplicate's pair).
-        if kind in ("add_landmark", "delete_dbn"):
+        if isinstance(op, AddLandmark | DeleteDBN):
             self._pairs_of = {(d.antecedent, d.consequent) for d in self.dbns.values()}
         self._index_dirty = True
 
@@ -749,8 +759,8 @@ class ModelLearner:
             cells = np.zeros(len(ok), dtype=np.int64)
         dbn.cpt_s, dbn.cpt_f = counts_by_cell(cells, ok, n_cells)
 
-    def _add_landmark(self, var: int, lm: Landmark, dbn_id: int | None, ante: list | None,
-                      ctx: list | None) -> None:
+    def _add_landmark(self, var: int, lm: Landmark, dbn_id: int | None, ante: Event | None,
+                      ctx: tuple[int, ...] | None) -> None:
         space = self.perception.spaces[var]
         if space.interval_of_range(lm.lb, lm.ub) is None and space.landmarks:
             return                                  # overlaps since computed: skip, deterministic
@@ -908,3 +918,27 @@ class ModelLearner:
 
     def stats(self, dbn: DBN) -> ModelStats:
         return model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), self.params)
+
+    # ------------------------------------------------------------------------------------------
+    # state (checkpoints, snapshots): the bookkeeping that no public field holds
+    # ------------------------------------------------------------------------------------------
+    def to_state(self) -> dict[str, Any]:
+        """The open DBN activations as JSON: ``expiry``, the change DBNs' activations waiting
+        for their window, in expiry order, as ``[expire_step, dbn_id, i]`` (``i``: the
+        activation's index in the DBN's ``pending``); ``mag_active``, the active magnitude DBNs
+        per variable as ``[var, [dbn_id, ...]]``. Every other part of the learner's state is in
+        public fields (``qlap_runtime/qlap/checkpoint.py`` writes them); :meth:`load_state` is
+        the inverse."""
+        pos = {d.id: {id(e): i for i, e in enumerate(d.pending)} for d in self.dbns.values()}
+        return {"expiry": [[t, d.id, pos[d.id][id(e)]] for t, d, e in self._expiry
+                           if d.id in pos and id(e) in pos[d.id]],
+                "mag_active": [[y, [d.id for d in ds]] for y, ds in self._mag_active.items()]}
+
+    def load_state(self, state: Mapping[str, Any]) -> None:
+        """Restore :meth:`to_state`'s open activations once ``dbns`` hold the saved DBNs (with
+        their ``pending`` activations), and rebuild the indexes derived from the DBNs."""
+        self._expiry = deque((int(t), self.dbns[int(i)], self.dbns[int(i)].pending[int(j)])
+                             for t, i, j in state["expiry"])
+        self._mag_active = {int(y): [self.dbns[int(i)] for i in ids]
+                            for y, ids in state["mag_active"]}
+        self._reindex()

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -476,3 +477,28 @@ class Perception:
             # Same value as np.mean(bool column): an exact integer count over n.
             out[sel] = counts[cons_val[sel]] / n
         return out
+
+    # -- state (checkpoints, snapshots) -----------------------------------------------------
+    def to_state(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        """The perception's state as (JSON object, arrays): the quantity spaces (the learned
+        landmarks), the bounded history's position and the counters; the previous values and
+        the histories as arrays (the live ones, not copies: write them before the next step).
+        :meth:`load_state` is its inverse; docs/checkpoint.md describes the fields."""
+        meta = {"spaces": [s.to_json() for s in self.spaces], "hist_len": self.hist_len,
+                "hist_head": self.hist_head, "steps_seen": self.steps_seen,
+                "all_seen": self._all_seen}
+        arrays = {"prev_x": self.prev_x, "prev_q": self.prev_q, "hist_x": self.hist_x,
+                  "hist_q": self.hist_q}
+        return meta, arrays
+
+    def load_state(self, meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> None:
+        """Restore :meth:`to_state`'s state into this perception (built for the same variable
+        table); the landmark matrices and the event index are rebuilt from the spaces."""
+        self.spaces = [QuantitySpace.from_json(s) for s in meta["spaces"]]
+        self._rebuild()
+        self.prev_x = arrays["prev_x"].astype(float)
+        self.prev_q = arrays["prev_q"].astype(np.int64)
+        self.hist_x = arrays["hist_x"].astype(float)
+        self.hist_q = arrays["hist_q"].astype(np.int16)
+        self.hist_len, self.hist_head = int(meta["hist_len"]), int(meta["hist_head"])
+        self.steps_seen, self._all_seen = int(meta["steps_seen"]), bool(meta["all_seen"])

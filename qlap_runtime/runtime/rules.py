@@ -17,6 +17,7 @@ import numbers
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..qlap.delta import AddDBN, AddLandmark, SetContext, SetK, op_from_json
 from ..qlap.params import Params
 from .lockstep import batch_kinds
 
@@ -89,45 +90,30 @@ def _var(v: Any, n_vars: int) -> bool:
     return _int(v) and 0 <= v < n_vars
 
 
-def _event(e: Any, n_vars: int) -> bool:
-    return isinstance(e, list | tuple) and len(e) == 3 and _var(e[0], n_vars) \
-        and all(_int(x) for x in e[1:])
-
-
-def _vars(c: Any, n_vars: int) -> bool:
-    return isinstance(c, list | tuple) and all(_var(v, n_vars) for v in c)
-
-
 def op_problem(op: Sequence[Any], n_vars: int) -> str | None:
-    """What is wrong with one delta operation (None: nothing)."""
-    name = op[0]
-    if name == "refresh":
-        return None if len(op) == 1 else "refresh takes no argument"
-    if name == "set_k":
-        return None if len(op) == 2 and _int(op[1]) and 1 <= op[1] <= 1000 \
-            else f"set_k {op[1:]!r}"
-    if name == "add_dbn":
-        if len(op) != 5 or not _event(op[2], n_vars) or not _event(op[3], n_vars) \
-                or not _vars(op[4], n_vars):
-            return f"add_dbn names an unknown variable or is malformed: {list(op)!r}"[:200]
-        return None
-    if name == "set_context":
-        if len(op) != 3 or not _int(op[1]) or not _vars(op[2], n_vars):
-            return f"set_context names an unknown variable or is malformed: {list(op)!r}"[:200]
-        return None
-    if name == "delete_dbn":
-        return None if len(op) == 2 and _int(op[1]) else f"delete_dbn {op[1:]!r}"
-    if name == "add_landmark":
-        if len(op) != 9 or not _var(op[1], n_vars) or not all(
-                isinstance(x, numbers.Real) and math.isfinite(x) for x in op[2:4]) \
-                or not _int(op[5]) \
-                or not (op[6] is None or _int(op[6])) \
-                or not (op[7] is None or _event(op[7], n_vars)) \
-                or not (op[8] is None or _vars(op[8], n_vars)):
-            return f"add_landmark names an unknown variable or is malformed: " \
-                   f"{list(op)!r}"[:200]
-        return None
-    return f"unknown operation {name!r}"
+    """What is wrong with one delta operation in its JSON form (None: nothing): malformed
+    (:func:`~qlap_runtime.qlap.delta.op_from_json` names the field), a variable that is not in
+    the run's table, or a window k above 1000."""
+    try:
+        parsed = op_from_json(op)
+    except ValueError as exc:
+        return str(exc)[:200]
+    match parsed:
+        case SetK(k=k) if k > 1000:
+            return f"set_k {k}: outside 1–1000"
+        case AddDBN(antecedent=a, consequent=c, context=ctx):
+            used: tuple[int, ...] = (a.var, c.var, *ctx)
+        case SetContext(context=ctx):
+            used = ctx
+        case AddLandmark(var=var, antecedent=a, context=ctx):
+            used = (var, *(() if a is None else (a.var,)), *(ctx or ()))
+        case _:
+            used = ()
+    unknown = [v for v in used if v >= n_vars]
+    if unknown:
+        return f"{parsed.NAME} names an unknown variable {unknown[0]} (the table has " \
+               f"{n_vars}): {list(op)!r}"[:200]
+    return None
 
 
 def delta_rule(params: Params, n_vars: int, realtime: bool = False) -> Rule:

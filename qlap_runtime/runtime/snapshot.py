@@ -31,7 +31,6 @@ import numpy as np
 from ..qlap.checkpoint import CheckpointError, atomic_write_bytes, atomic_write_json
 from ..qlap.delta import Delta
 from ..qlap.perception import Perception
-from ..qlap.quantity import QuantitySpace
 from .lockstep import DeltaBook
 
 FORMAT = "qlap-actor-snapshot"
@@ -60,11 +59,7 @@ def restore_book(book: DeltaBook, state: dict[str, Any]) -> None:
 def save_perception(per: Perception, directory: Path, name: str = "perception") -> None:
     """The perception actor's state: quantity spaces (its landmarks), previous values and the
     bounded history (``perceive`` reads the previous values; the history is small)."""
-    meta = {"spaces": [s.to_json() for s in per.spaces], "hist_len": per.hist_len,
-            "hist_head": per.hist_head, "steps_seen": per.steps_seen,
-            "all_seen": per._all_seen}
-    arrays = {"prev_x": per.prev_x, "prev_q": per.prev_q, "hist_x": per.hist_x,
-              "hist_q": per.hist_q}
+    meta, arrays = per.to_state()
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     atomic_write_bytes(directory / f"{name}.npz", buf.getvalue())
@@ -77,14 +72,7 @@ def load_perception(per: Perception, directory: Path, name: str = "perception") 
         meta = json.loads((directory / f"{name}.json").read_text())
         with np.load(directory / f"{name}.npz", allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-        per.spaces = [QuantitySpace.from_json(s) for s in meta["spaces"]]
-        per._rebuild()
-        per.prev_x = arrays["prev_x"].astype(float)
-        per.prev_q = arrays["prev_q"].astype(np.int64)
-        per.hist_x = arrays["hist_x"].astype(float)
-        per.hist_q = arrays["hist_q"].astype(np.int16)
-        per.hist_len, per.hist_head = int(meta["hist_len"]), int(meta["hist_head"])
-        per.steps_seen, per._all_seen = int(meta["steps_seen"]), bool(meta["all_seen"])
+        per.load_state(meta, arrays)
     except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
         raise CheckpointError(f"{directory}: unreadable perception snapshot "
                               f"({type(exc).__name__}: {exc})") from None

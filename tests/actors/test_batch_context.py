@@ -14,6 +14,7 @@ from qlap_runtime.agent_run import params_for_world, run_agent
 from qlap_runtime.bus.schema import BatchContext, decode, encode
 from qlap_runtime.qlap import Params
 from qlap_runtime.qlap.checkpoint import load_learner, save_learner
+from qlap_runtime.qlap.delta import DeleteDBN
 
 
 def ops(learner, step: int) -> list:
@@ -51,4 +52,4 @@ def test_a_replica_with_the_executors_context_computes_the_synchronous_batch(tmp
                                tuple(plans))
     apply_batch_context(replica, msg)
     assert ops(replica, 4000) == expected
-    assert ("delete_dbn", other.id) in expected    # §6.2.1 item 4: its DBNs go
+    assert DeleteDBN(other.id) in expected    # §6.2.1 item 4: its DBNs go

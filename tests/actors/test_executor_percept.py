@@ -13,7 +13,7 @@ from __future__ import annotations
 import worlds
 from actors.convert import QStateCodec
 from qlap_runtime.qlap import ModelLearner, Params
-from qlap_runtime.qlap.delta import Delta
+from qlap_runtime.qlap.delta import AddLandmark, Delta
 from qlap_runtime.qlap.perception import Perception
 
 
@@ -39,8 +39,7 @@ def test_a_landmark_applied_after_observing_renumbers_the_returned_percept():
     assert int(p_exec.q[var.index]) == before
 
     # A landmark below h_x: its qualitative value moves up by two (landmark + interval).
-    delta = Delta(1, 0, 1, (("add_landmark", var.index, x - 0.5, x - 0.5, "event", 0,
-                             None, None, None),))
+    delta = Delta(1, 0, 1, (AddLandmark(var.index, x - 0.5, x - 0.5, "event", 0),))
     sync.apply_delta(delta)
     follower.apply_delta(delta)
     assert int(p_sync.q[var.index]) == before + 2

@@ -356,7 +356,7 @@ def test_a_discontinuity_ends_the_call_list_without_recording(trained):
 
 
 def test_a_motor_value_out_of_range_is_not_applicable_and_never_crashes():
-    from qlap_runtime.qlap.delta import Delta
+    from qlap_runtime.qlap.delta import AddLandmark, Delta
     from tests.qlap.toyworld import Spec
 
     specs = (Spec("g", "motor", 0.0, 1.0), Spec("x", "magnitude"))
@@ -365,8 +365,7 @@ def test_a_motor_value_out_of_range_is_not_applicable_and_never_crashes():
         agent.step(t, {"x": 1.0})
     g = agent.table.index("g")
     # a landmark at 0 (as core's u_UG had): (−∞, 0) is a value g can never take
-    agent.learner.apply_delta(Delta(1, 2, 2, (("add_landmark", g, 0.0, 0.0, "dbn", 2, None,
-                                               None, None),)))
+    agent.learner.apply_delta(Delta(1, 2, 2, (AddLandmark(g, 0.0, 0.0, "dbn", 2),)))
     agent.step(3, {"x": 1.0})
     space = agent.learner.perception.spaces[g]
     assert space.bounds(0)[1] == 0.0
@@ -389,13 +388,13 @@ def test_a_motor_value_out_of_range_is_not_applicable_and_never_crashes():
 
 def fresh_agent(specs, params: Params, landmarks: dict[str, float] | None = None) -> Agent:
     """An agent that has seen three steps, with point landmarks added through a delta."""
-    from qlap_runtime.qlap.delta import Delta
+    from qlap_runtime.qlap.delta import AddLandmark, Delta
 
     agent = Agent(specs, params, seed=0)
     obs = {s.name: 5.0 for s in specs if s.kind == "magnitude"}
     for t in range(3):
         agent.step(t, obs)
-    ops = tuple(("add_landmark", agent.table.index(n), v, v, "event", 2, None, None, None)
+    ops = tuple(AddLandmark(agent.table.index(n), v, v, "event", 2)
                 for n, v in (landmarks or {}).items())
     agent.learner.apply_delta(Delta(1, 2, 2, ops))
     agent.step(3, obs)
@@ -476,7 +475,7 @@ def test_nrp_needs_a_sufficiently_reliable_plan_for_the_antecedent():
 def test_a_landmark_batch_renumbers_the_running_call_list_and_keeps_q(trained):
     import copy
 
-    from qlap_runtime.qlap.delta import Delta
+    from qlap_runtime.qlap.delta import AddLandmark, Delta
 
     agent, _ = copy.deepcopy(trained)
     agent.learning = True
@@ -503,8 +502,7 @@ def test_a_landmark_batch_renumbers_the_running_call_list_and_keeps_q(trained):
     old_keys = [f.key for f in agent.call_list]
     assert agent.learner.perception.spaces[u].bounds(0)[1] < -0.29   # (−∞, −0.3…) is value 0
     # a landmark at −0.9 splits u's value 0; every value of u above it moves up by 2
-    agent.learner.apply_delta(Delta(99, t - 1, t - 1, (("add_landmark", u, -0.9, -0.9, "dbn",
-                                                        t - 1, None, None, None),)))
+    agent.learner.apply_delta(Delta(99, t - 1, t - 1, (AddLandmark(u, -0.9, -0.9, "dbn", t - 1),)))
     interrupts = agent.counters.call_list_interrupts
     full = {"x": world.x, **agent.motor}
     p = agent.learner.observe(t, full)
@@ -541,7 +539,7 @@ def test_a_reliable_action_that_lost_its_plans_learns_again(tmp_path):
 def nominal_goal_agent():
     """An agent with one plan for a nominal goal: a(b, true) by ⟨{}: ↑x→(8, +inf) ⇒ b→true⟩
     (its space is x and b, no direction of change); returns (agent, plan, x, b)."""
-    from qlap_runtime.qlap.delta import Delta
+    from qlap_runtime.qlap.delta import AddDBN, AddLandmark, Delta
     from tests.qlap.toyworld import Spec
 
     specs = (Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"),
@@ -551,8 +549,7 @@ def nominal_goal_agent():
         agent.step(t, {"x": 1.0, "b": 0.0})
     x, b = agent.table.index("x"), agent.table.index("b")
     agent.learner.apply_delta(Delta(1, 2, 2, (
-        ("add_landmark", x, 8.0, 8.0, "dbn", 2, None, None, None),
-        ("add_dbn", "change", [x, 2, 1], [b, 1, 0], []))))
+        AddLandmark(x, 8.0, 8.0, "dbn", 2), AddDBN("change", (x, 2, 1), (b, 1, 0)))))
     agent.step(3, {"x": 1.0, "b": 0.0})
     dbn = next(d for d in agent.learner.dbns.values() if d.consequent.var == b)
     return agent, agent._add_plan(dbn, 3), x, b

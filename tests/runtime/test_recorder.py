@@ -14,7 +14,7 @@ from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import Publisher
 from qlap_runtime.bus.recorder import echo, read_mcap, read_metadata, record
 from qlap_runtime.bus.schema import Control, DeltaMsg, IACChoice, Motor, QState, Sense
-from qlap_runtime.qlap.delta import Delta
+from qlap_runtime.qlap.delta import Delta, SetK
 
 
 def _published(n: int) -> list[tuple[str, object]]:
@@ -23,7 +23,7 @@ def _published(n: int) -> list[tuple[str, object]]:
         out.append(("sense", Sense(t, {"x": t / 10, "y": -t})))
         out.append(("qstate", QState(t, {"x": t % 3}, (("x", t % 3, 1),) if t % 2 else ())))
         out.append(("motor", Motor(t, {"u": 300.0})))
-    out.append(("delta/dbn", DeltaMsg.of("dbn", Delta(1, 0, 0, (("set_k", 3),)))))
+    out.append(("delta/dbn", DeltaMsg.of("dbn", Delta(1, 0, 0, (SetK(3),)))))
     out.append(("iac", IACChoice(n, "", 0.0, 0, True)))
     out.append(("control", Control("pause")))
     return out

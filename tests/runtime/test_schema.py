@@ -32,7 +32,8 @@ from qlap_runtime.bus.schema import (
     encode,
     json_schema,
 )
-from qlap_runtime.qlap.delta import Delta
+from qlap_runtime.qlap.delta import AddDBN, AddLandmark, Delta, SetK
+from qlap_runtime.qlap.variables import Event
 
 EXAMPLES = {
     "sense": Sense(7, {"hand_x": 0.25, "hand_y": -1.5}),
@@ -40,9 +41,9 @@ EXAMPLES = {
     "motor": Motor(7, {"u_x": 300.0, "u_UG": 0.0}),
     "batchctx": BatchContext(1999, ((5, 2), (7, 0)), (0, 3, 12)),
     "delta/dbn": DeltaMsg.of("dbn", Delta(3, 4000, 4500, (
-        ("set_k", 4), ("add_dbn", "change", ["u_x", 2, 0], ["hand_x", 1, 1], [])))),
+        SetK(4), AddDBN("change", Event(0, 2, 0), Event(3, 1, 1), ())))),
     "delta/landmarks": DeltaMsg.of("landmarks", Delta(1, 4000, 4500, (
-        ("add_landmark", 3, 0.1, 0.2, "event", 4000, None, None, None),))),
+        AddLandmark(3, 0.1, 0.2, "event", 4000),))),
     "delta/plans": DeltaMsg("plans", {"version": 1, "computed_at": 0, "apply_at": 0,
                                       "ops": []}),
     "calllist": CallList(7, ("a(hand_x,2)", "a(T,1)")),
@@ -87,7 +88,7 @@ def test_float_fields_accept_integers_and_delta_unwraps():
     assert decode("qlap/r/motor", b'{"step":1,"values":{"u":3},"version":1}') == Motor(
         1, {"u": 3.0})
     d = decode("qlap/r/delta/dbn", encode(EXAMPLES["delta/dbn"]))
-    assert d.to_delta().ops[0] == ("set_k", 4)
+    assert d.to_delta().ops[0] == SetK(4)
 
 
 BAD = [

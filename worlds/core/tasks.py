@@ -51,7 +51,7 @@ def _setup_trial(world: CoreWorld, rng: np.random.Generator) -> dict[str, float]
     world.reset(seed=int(rng.integers(2**63 - 1)))
     world.random_hand(rng)
     world.place_block(rng)
-    return world.restart_from(world._observe())
+    return world.restart_here()
 
 
 class _CoreTask(Task):
@@ -164,7 +164,7 @@ class HitSecondary(_CoreTask):
 
     def is_failure(self, world: World, obs: Mapping[str, float]) -> bool:
         w: CoreWorld = world  # type: ignore[assignment]
-        return w.block_replaced or w._pending_replace
+        return w.block_replaced or w.replace_pending
 
 
 class ContingentUp(_CoreTask):

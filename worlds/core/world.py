@@ -674,6 +674,17 @@ class CoreWorld(World):
             q[qadr + 2] = TABLE_TOP + width / 2 - REST_DEPTH
             v[vadr + 2] = max(float(v[vadr + 2]), 0.0)
 
+    def restart_here(self) -> dict[str, float]:
+        """:meth:`restart_from` the observation of the current state: what a task's setup
+        calls after moving the hand or the block past ``reset()``."""
+        return self.restart_from(self._observe())
+
+    @property
+    def replace_pending(self) -> bool:
+        """The block fell, went out of reach or hit the other block: it is put back on the
+        table at the next step."""
+        return self._pending_replace
+
     def _observe(self) -> dict[str, float]:
         hx, hy, hz = self.hand_position()
         bx, by, bz = self.block_position()
