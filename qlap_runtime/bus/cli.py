@@ -189,8 +189,20 @@ async def _record(cfg: zenoh.Config, args: argparse.Namespace) -> int:
                 await trio.sleep(args.duration)
                 stop.set()
             nursery.start_soon(timer)
-        summary = await record(cfg, args.run, args.out, stop,
-                               scene_hz=None if args.no_scene else max(args.scene_hz, 0.0))
+        done: list[Any] = []
+
+        async def recording(task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED
+                            ) -> None:
+            done.append(await record(
+                cfg, args.run, args.out, stop, task_status=task_status,
+                scene_hz=None if args.no_scene else max(args.scene_hz, 0.0)))
+
+        async with trio.open_nursery() as inner:
+            await inner.start(recording)
+            # Subscribed from here on: what is published now is recorded.
+            print(f"qlap record: recording {args.run or 'every run'} to {args.out}; "
+                  "Ctrl-C to stop", file=sys.stderr, flush=True)
+        summary = done[0]
         nursery.cancel_scope.cancel()
     print(f"qlap record: {summary.messages} messages on {len(summary.by_topic)} topics and "
           f"{summary.scenes} scene updates of {len(summary.runs)} run(s) to {summary.path} "
@@ -204,7 +216,16 @@ async def _echo(cfg: zenoh.Config, args: argparse.Namespace) -> int:
     stop = trio.Event()
     async with trio.open_nursery() as nursery:
         await nursery.start(_until_signal, stop)
-        await echo(cfg, args.key, stop, raw=args.raw, limit=args.count)
+
+        async def echoing(task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED
+                          ) -> None:
+            await echo(cfg, args.key, stop, raw=args.raw, limit=args.count,
+                       task_status=task_status)
+
+        async with trio.open_nursery() as inner:
+            await inner.start(echoing)
+            print(f"qlap echo: printing {args.key}; Ctrl-C to stop", file=sys.stderr,
+                  flush=True)
         nursery.cancel_scope.cancel()
     return 0
 

@@ -38,8 +38,11 @@ def test_record_and_echo_subprocesses_exit_on_sigint(tmp_path):
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             key = keys.key("cli", "sense")
+            # Both print a line once subscribed; then their subscriptions reach the router.
+            assert "recording" in rec.stderr.readline()
+            assert "printing" in ech.stderr.readline()
             pub = _wait_matched(s, key)
-            time.sleep(0.5)  # both subprocesses subscribed
+            time.sleep(0.5)
             for t in range(10):
                 pub.put(encode(Sense(t, {"x": 1.0})))
             pub.undeclare()
