@@ -142,3 +142,37 @@ async def test_subscriber_iteration_ends_when_closed(embedded, run_id, autojump_
         await trio.sleep(1)
         sub.close()
     assert batches == []
+
+
+async def test_a_message_reaches_its_own_sessions_subscribers_at_once_and_exactly_once(
+        two_clients, run_id):
+    """LocalRoutes: a Publisher hands its message to the TrioSubscribers of its own session
+    during ``put`` (no Zenoh callback thread, no wake-up round trip); Zenoh still carries it to
+    the other session and to a raw subscriber of the same session; the own subscribers drop the
+    tagged second copy."""
+    here, there = two_clients
+    key = keys.key(run_id, "sense")
+    raw: list[bytes] = []
+    with TrioSubscriber(here, key) as local, TrioSubscriber(there, key) as remote, \
+            Publisher(here, run_id, "sense") as pub:
+        handle = here.declare_subscriber(key, lambda s: raw.append(s.payload.to_bytes()))
+        with trio.fail_after(10):
+            await pub.wait_matched()
+            while not remote.received:          # the other session's subscription is routed
+                pub.put(Sense(-1, {}))
+                await trio.sleep(0.05)
+        await trio.sleep(0.2)
+        local.receive_nowait(), remote.receive_nowait()
+        raw.clear()
+        for t in range(3):
+            before = local.received
+            pub.put(Sense(t, {"x": 1.0}))
+            assert local.received == before + 1        # delivered within put
+        got_remote: list[int] = []
+        with trio.fail_after(10):
+            while len(got_remote) < 3 or len(raw) < 3:
+                got_remote += [r.msg.step for r in await remote.receive_batch()]
+        await trio.sleep(0.3)                          # the tagged copies reach `local` too
+        assert [r.msg.step for r in local.receive_nowait()] == [0, 1, 2]   # once each
+        assert got_remote == [0, 1, 2] and len(raw) == 3
+        handle.undeclare()
