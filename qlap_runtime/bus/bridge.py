@@ -25,7 +25,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 import trio
 import zenoh
@@ -73,6 +73,7 @@ class TrioInbox(Generic[T]):
 
     def __init__(self) -> None:
         self._token = trio.lowlevel.current_trio_token()
+        self._thread = threading.get_ident()
         self._lock = threading.Lock()
         self._items: deque[T] = deque()
         self._event = trio.Event()
@@ -88,6 +89,17 @@ class TrioInbox(Generic[T]):
             self.pushed += 1
             event = self._event
         if was_empty:
+            if threading.get_ident() == self._thread:
+                self._set_here(event)
+            else:
+                self._wake(event)
+
+    def _set_here(self, event: trio.Event) -> None:
+        """On the consuming trio run's own thread (a put from one of its tasks): set the event
+        at once instead of a ``run_sync_soon`` round trip through trio's wake-up socket."""
+        try:
+            event.set()
+        except RuntimeError:                # not inside the run (it has ended): as from afar
             self._wake(event)
 
     def close(self) -> None:
@@ -214,14 +226,23 @@ class TrioSubscriber:
         self.counter = counter if counter is not None else RejectionCounter()
         self._decode = decode
         self._inbox: TrioInbox[tuple[str, bytes, int]] = TrioInbox()
+        self._routes = LocalRoutes.of(session)
         self._sub = session.declare_subscriber(key_expr, self._on_sample)
+        self._since = self._routes.add(self)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Runs on a Zenoh thread (or the publisher's thread): no actor state here.
+        # Runs on a Zenoh thread: no actor state here.
         try:
+            att = sample.attachment
+            if att is not None and self._routes.delivered(att.to_bytes(), self._since):
+                return                       # a Publisher of this session handed it over
             self._inbox.push((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
         except Exception:
             log.exception("subscriber callback failed on %s", self.key_expr)
+
+    def deliver(self, key: str, payload: bytes) -> None:
+        """A message published on this subscriber's session (:class:`LocalRoutes`)."""
+        self._inbox.push((key, payload, time.time_ns()))
 
     @property
     def received(self) -> int:
@@ -262,6 +283,7 @@ class TrioSubscriber:
 
     def close(self) -> None:
         """Undeclare the subscriber; iteration ends after the queued messages."""
+        self._routes.remove(self)
         try:
             self._sub.undeclare()
         except zenoh.ZError:  # pragma: no cover - session already closed
@@ -273,6 +295,75 @@ class TrioSubscriber:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+# --------------------------------------------------------------------------- local routes
+
+
+class LocalRoutes:
+    """The :class:`TrioSubscriber` s declared on one session, so that a :class:`Publisher` of the
+    same session hands them its messages directly, on the publishing thread.
+
+    Zenoh runs a Python callback on its own thread even for a put in the same session, so an
+    in-process hop would cost a thread hand-over (the GIL) and a trio wake-up through a socket;
+    in the embedded placement every step crosses three such hops. The message still goes out on
+    Zenoh for every other subscriber (other processes, raw subscribers such as the terminal
+    UI's), with an attachment naming this session and the routes' version; a subscriber of this
+    session registered by that version drops that second copy (:meth:`delivered`). Messages put
+    without a :class:`Publisher` (raw puts, other processes) reach every subscriber through
+    Zenoh as before.
+    """
+
+    _by_session: ClassVar[dict[str, LocalRoutes]] = {}
+    _lock: ClassVar[threading.Lock] = threading.Lock()
+
+    def __init__(self, zid: str) -> None:
+        self.zid = zid
+        self.prefix = f"qlap-local/{zid}/".encode()
+        self.version = 0
+        self._subs: list[TrioSubscriber] = []
+
+    @classmethod
+    def of(cls, session: zenoh.Session) -> LocalRoutes:
+        zid = str(session.info.zid())
+        with cls._lock:
+            routes = cls._by_session.get(zid)
+            if routes is None:
+                routes = cls._by_session[zid] = cls(zid)
+            return routes
+
+    def add(self, sub: TrioSubscriber) -> int:
+        """Register ``sub``; the version from which it receives local messages directly."""
+        with self._lock:
+            self._subs.append(sub)
+            self.version += 1
+            return self.version
+
+    def remove(self, sub: TrioSubscriber) -> None:
+        with self._lock:
+            if sub in self._subs:
+                self._subs.remove(sub)
+                self.version += 1
+
+    def matching(self, key: str) -> tuple[int, list[TrioSubscriber]]:
+        """The version and the subscribers whose key expression intersects ``key``."""
+        with self._lock:
+            ke = zenoh.KeyExpr(key)
+            return self.version, [s for s in self._subs
+                                  if zenoh.KeyExpr(s.key_expr).intersects(ke)]
+
+    def tag(self, version: int) -> bytes:
+        return self.prefix + str(version).encode()
+
+    def delivered(self, attachment: bytes, since: int) -> bool:
+        """True when ``attachment`` says a publisher of this session already handed the
+        message to the subscribers registered by then, one of them registered at ``since``."""
+        if not attachment.startswith(self.prefix):
+            return False
+        try:
+            return int(attachment[len(self.prefix):]) >= since
+        except ValueError:
+            return False
 
 
 # --------------------------------------------------------------------------- publisher
@@ -297,6 +388,8 @@ class Publisher:
         self._pub = session.declare_publisher(
             self.key, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=self.congestion,
             priority=priority, express=express)
+        self._routes = LocalRoutes.of(session)
+        self._local: tuple[int, list[TrioSubscriber]] = (-1, [])
         self.sent = 0
 
     def put(self, msg: Message) -> None:
@@ -305,8 +398,21 @@ class Publisher:
         if type(msg) is not self.msg_type:
             raise TypeError(f"{self.key} carries {self.msg_type.__name__}, "
                             f"not {type(msg).__name__}")
-        self._pub.put(encode(msg))
+        self._send(encode(msg))
         self.sent += 1
+
+    def _send(self, payload: bytes) -> None:
+        """Hand ``payload`` to the subscribers of this session, then put it on Zenoh for every
+        other subscriber, tagged so that this session's own drop their second copy."""
+        version, local = self._local
+        if version != self._routes.version:
+            version, local = self._local = self._routes.matching(self.key)
+        if not local:
+            self._pub.put(payload)
+            return
+        for sub in local:
+            sub.deliver(self.key, payload)
+        self._pub.put(payload, attachment=self._routes.tag(version))
 
     @property
     def matched(self) -> bool:
@@ -321,8 +427,9 @@ class Publisher:
             await trio.sleep(poll)
 
     def put_raw(self, payload: bytes) -> None:
-        """Publish bytes as they are (tests of the decoder's defences)."""
-        self._pub.put(payload)
+        """Publish bytes as they are (tests of the decoder's defences), in order with
+        :meth:`put`."""
+        self._send(payload)
 
     def close(self) -> None:
         try:

@@ -142,3 +142,46 @@ async def test_subscriber_iteration_ends_when_closed(embedded, run_id, autojump_
         await trio.sleep(1)
         sub.close()
     assert batches == []
+
+
+async def test_a_message_reaches_its_own_sessions_subscribers_within_put_and_once(
+        embedded, run_id):
+    """LocalRoutes: on a peer session (the embedded placement's) Zenoh runs Python callbacks on
+    a thread of its own, so an in-process hop cost a thread hand-over and a trio wake-up; a
+    Publisher now hands its message to the TrioSubscribers of its session during ``put``. A raw
+    subscriber of the session still gets it through Zenoh, and the TrioSubscriber drops the
+    tagged second copy."""
+    key = keys.key(run_id, "sense")
+    raw: list[bytes] = []
+    with TrioSubscriber(embedded, key) as sub, Publisher(embedded, run_id, "sense") as pub:
+        handle = embedded.declare_subscriber(key, lambda s: raw.append(s.payload.to_bytes()))
+        for t in range(3):
+            before = sub.received
+            pub.put(Sense(t, {"x": 1.0}))
+            assert sub.received == before + 1          # delivered within put
+        await trio.sleep(0.5)                  # the raw and the tagged copies arrive meanwhile
+        assert len(raw) == 3
+        assert [r.msg.step for r in sub.receive_nowait()] == [0, 1, 2]     # once each
+        handle.undeclare()
+
+
+async def test_other_sessions_get_a_locally_handed_message_once(two_clients, run_id):
+    here, there = two_clients
+    key = keys.key(run_id, "sense")
+    with TrioSubscriber(here, key) as local, TrioSubscriber(there, key) as remote, \
+            Publisher(here, run_id, "sense") as pub:
+        with trio.fail_after(10):
+            while not remote.received:          # the other session's subscription is routed
+                pub.put(Sense(-1, {}))
+                await trio.sleep(0.05)
+        await trio.sleep(0.2)
+        local.receive_nowait(), remote.receive_nowait()
+        for t in range(3):
+            pub.put(Sense(t, {"x": 1.0}))
+        got: list[int] = []
+        with trio.fail_after(10):
+            while len(got) < 3:
+                got += [r.msg.step for r in await remote.receive_batch()]
+        await trio.sleep(0.3)
+        assert got == [0, 1, 2]
+        assert [r.msg.step for r in local.receive_nowait()] == [0, 1, 2]
