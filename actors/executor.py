@@ -141,20 +141,23 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
             display.close()
             if metrics is not None:
                 metrics.finish(resume.step + 1 + steps_done, agent)
-    wall = time.perf_counter() - t_start
-    quit_at = actor.controls.last_step
-    result = actor.result(wait_s=round(deltas.wait_s, 3), rejected_observations=len(rejected),
-                          rejected_examples=rejected[:20], wall_s=wall, steps_done=steps_done,
-                          **({} if quit_at is None else {"quit_at_step": quit_at}))
-    if ctx.out is not None:
-        out = Path(ctx.out)
-        atomic_write_json(out / "knowledge.json", agent.knowledge())
-        # final links to the last step-N when nothing changed the agent since (no step, no
-        # goal command): the same state, not a copy.
-        same = last_saved[2] if last_saved[:2] == (agent.step_count,
-                                                   runner.agent_changes) else None
-        save_final_checkpoint(agent, out / "checkpoints", ctx.world, same_as=same)
-        summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed,
-                             steps_done if quit_at is not None else ctx.steps, wall, rejected)
-        atomic_write_json(out / "actors" / f"{NAME}.json", summary)
+        wall = time.perf_counter() - t_start
+        quit_at = actor.controls.last_step
+        result = actor.result(wait_s=round(deltas.wait_s, 3), rejected_observations=len(rejected),
+                              rejected_examples=rejected[:20], wall_s=wall, steps_done=steps_done,
+                              **({} if quit_at is None else {"quit_at_step": quit_at}))
+        if ctx.out is not None:
+            out = Path(ctx.out)
+            atomic_write_json(out / "knowledge.json", agent.knowledge())
+            # final links to the last step-N when nothing changed the agent since (no step, no
+            # goal command): the same state, not a copy.
+            same = last_saved[2] if last_saved[:2] == (agent.step_count,
+                                                       runner.agent_changes) else None
+            save_final_checkpoint(agent, out / "checkpoints", ctx.world, same_as=same)
+            summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed,
+                                 steps_done if quit_at is not None else ctx.steps, wall, rejected)
+            atomic_write_json(out / "actors" / f"{NAME}.json", summary)
+        # Outputs first (a failed world waits for the other actors' tokens, then reads
+        # them); then a batch actor behind may still ask for a lost batch context.
+        await actor.linger(("contingency", "landmarks"))
     return result

@@ -100,6 +100,7 @@ async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
         actor.slot.finished()
         if role == "contingency":
             save_statistics_part(final_dir(ctx), learner)
+        await actor.linger(CONSUMERS)           # a consumer behind may ask for a lost delta
     return actor.result(batches=len(batch_s), batch_s=round(sum(batch_s), 3))
 
 
@@ -140,8 +141,9 @@ class Outbox:
 
     def publish(self, delta: Delta) -> None:
         msg = DeltaMsg.of(self.kind, delta)
-        self.log(msg)
-        self.output.pub.put(msg)
+        pub = self.output.pub
+        if pub.put(msg) or pub.faults is None or not pub.faults.lost:
+            self.log(msg)
         self.in_flight.discard(delta.computed_at)
         self.slot.busy(len(self.in_flight))
 

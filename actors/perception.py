@@ -99,4 +99,5 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
                                last_observed=last_observed,
                                qstate=[[s, encode(m).decode()] for s, m in out.log.entries(since)])
         actor.slot.finished()
+        await actor.linger(CONSUMERS)           # a learner behind may ask for a lost qstate
     return actor.result(rejected_observations=rejected_obs)

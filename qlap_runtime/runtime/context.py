@@ -54,6 +54,9 @@ class RunContext:
     restarted: bool = False
     """This actor was restarted by the supervisor (from :attr:`resume_from`, or the start)."""
     resume_from: Path | None = None
+    faults: dict[str, Any] | None = None
+    """Messages to drop or delay (tests and the chaos harness only; the JSON form of
+    :class:`~qlap_runtime.bus.faults.Faults`); None: none."""
     board: Any = field(default=None, repr=False, compare=False)
     """The run's progress board (:mod:`~qlap_runtime.runtime.watchdog`), set by the launcher
     in each process; not part of the JSON form."""
