@@ -43,6 +43,7 @@ from qlap_runtime.runtime.runner import BoundaryCommands, Display, Runner
 
 from .checkpoint_parts import keep_on_stall
 from .convert import QStateCodec, batch_context
+from .resume import checkpoint_of
 
 NAME = "executor"
 
@@ -53,8 +54,11 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
     steps_done = 0
     with Actor(session, ctx, NAME, obey=True) as actor:
         resume = actor.resume
+        checkpoint = checkpoint_of(ctx, resume.path)
         agent = load_agent(resume.path) if resume.path is not None \
+            else load_agent(checkpoint) if checkpoint is not None \
             else Agent(specs, ctx.params, seed=ctx.seed)
+        agent.learner.pending_deltas.clear()    # a resumed run's: refused before the run
         agent.learner.auto_batches = False
         agent.learner.follower = True
         rejected: list[str] = list(resume.state.get("rejected", []))
@@ -84,6 +88,11 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
         commands = BoundaryCommands(actor.controls, runner, publish)
         try:
             await actor.start()
+            if checkpoint is not None and batch_kinds(ctx.params, ctx.start) \
+                    and ctx.start < ctx.end:
+                # A resumed run starting on a batch step: the batch reads the checkpoint's
+                # agent (the uninterrupted run's executor published it before motor(N - 1)).
+                contexts.put(ctx.start - 1, batch_context(agent, ctx.start - 1))
             async with trio.open_nursery() as nursery:
                 nursery.start_soon(commands.between_steps)
                 for t in actor.steps():

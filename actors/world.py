@@ -49,6 +49,7 @@ from qlap_runtime.runtime.rules import motor_rule
 from qlap_runtime.runtime.watchdog import slot_of
 
 from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
+from .resume import applied_motors, restore_world
 
 NAME = "world"
 OTHERS_END_S = 120.0
@@ -93,7 +94,11 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
         available = {v.name: int(getattr(v, "available_from", 0) or 0)
                      for v in world.variables}
         failed = None
-        obs = world.reset(seed=ctx.seed)
+        if ctx.resume_checkpoint is not None:  # a resumed run: the checkpoint's state
+            obs = restore_world(world, ctx.resume_checkpoint)
+            applied.update(applied_motors(ctx.resume_checkpoint))
+        else:
+            obs = world.reset(seed=ctx.seed)
         with declare_alive(session, ctx.run_id, NAME), \
                 TrioSubscriber(session, keys.key(ctx.run_id, "motor"), counter=counter) as sub, \
                 Publisher(session, ctx.run_id, "sense", faults=Faults.of(ctx.faults),

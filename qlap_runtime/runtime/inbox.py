@@ -232,6 +232,7 @@ class DeltaInbox:
     def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter,
                  slot: Slot | None = None, n_vars: int | None = None) -> None:
         self.book = DeltaBook(ctx.params)
+        self.book.last = ctx.start - 1             # a resumed run applied those before
         self.slot = slot if slot is not None else Slot()
         self.counter = counter
         self.keys = {k: keys.key(ctx.run_id, f"delta/{k}") for k in ("dbn", "landmarks")}
