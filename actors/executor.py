@@ -41,7 +41,7 @@ from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.rules import qstate_rule
 from qlap_runtime.runtime.runner import BoundaryCommands, Display, Runner
 
-from .checkpoint_parts import keep_on_stall
+from .checkpoint_parts import gather_final_parts, keep_on_stall
 from .convert import QStateCodec, batch_context
 from .resume import checkpoint_of
 
@@ -169,4 +169,6 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
         # Outputs first (a failed world waits for the other actors' tokens, then reads
         # them); then a batch actor behind may still ask for a lost batch context.
         await actor.linger(("contingency", "landmarks"))
+        if ctx.placement == "distributed":      # no launcher: the executor places them
+            await gather_final_parts(session, ctx)
     return result
