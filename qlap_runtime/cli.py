@@ -103,7 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--babble-steps", type=int, default=None,
                      help="length of the initial motor-babbling period (default: 20000, §6.1)")
     run.add_argument("--resume", type=Path, default=None,
-                     help="continue from an agent checkpoint directory")
+                     help="continue from an agent checkpoint directory (any placement's, in "
+                          "any placement; exact, or refused in one line)")
     run.add_argument("--quiet", action="store_true",
                      help="no progress bar (no progress lines)")
 
