@@ -12,7 +12,9 @@ An :class:`Actor` owns, for one actor of one run:
 - **resume and snapshots**: where it starts (:class:`Resume`, from the supervisor's restart
   fields of the run context), the replay of what it missed (:meth:`Actor.start`), and its
   snapshots at the boundaries the run schedules (:meth:`Actor.snapshot_due`,
-  :meth:`Actor.snapshot`), with their statistics in :meth:`Actor.result`.
+  :meth:`Actor.snapshot`), with their statistics in :meth:`Actor.result`;
+- **the end**: :meth:`Actor.linger` withdraws the token when the loop is done and keeps the
+  replay logs open until the actor's consumers are done too.
 
 Use as ``with Actor(session, ctx, name) as actor:``; everything is closed on exit.
 """
