@@ -6,7 +6,9 @@ there is refused in one line that says what to use instead (docs/decisions.md 50
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 from pathlib import Path
 
 import pytest
@@ -135,3 +137,29 @@ def test_qlap_run_resume_in_embedded(capsys, tmp_path):
                         "--resume", str(final), "--out", str(tmp_path / "bad"))
     assert code == 2
     assert_one_line(code, err, "corrupt agent checkpoint")
+
+
+@pytest.mark.slow
+def test_an_actor_killed_before_its_first_snapshot_restarts_from_the_checkpoint(tmp_path):
+    """processes: the supervisor restarts a batch actor of a resumed run that died before
+    its first snapshot; it loads the checkpoint again (not a fresh learner) and the run still
+    ends byte-identical."""
+    seed = 9
+    expected = sync_knowledge(BASE, seed)
+    ckpt = _source(tmp_path, "sync", seed)
+    ctx = resume_context(RunContext("t-resume-kill", "core2d", STEPS - RESUME_AT, 0, _params(),
+                                    out=tmp_path / "resumed", placement="processes",
+                                    snapshot_every=500), ckpt)
+    killed: list[int] = []
+
+    def kill(sup) -> None:
+        step = int(sup.board.slot("world").data[0])
+        if not killed and step >= RESUME_AT + 100:
+            os.kill(sup.procs["contingency"].pid, signal.SIGKILL)
+            killed.append(step)
+
+    summary = run_processes(ctx, on_poll=kill)
+    assert killed and killed[0] < RESUME_AT + 499, "killed after its first snapshot: vacuous"
+    assert [(r["actor"], r["from_step"]) for r in summary["restarted"]] == \
+        [("contingency", None)]
+    assert (tmp_path / "resumed" / "knowledge.json").read_text() == expected
