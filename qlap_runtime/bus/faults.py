@@ -71,7 +71,9 @@ class Faults:
             if "topics" in kw:
                 kw["topics"] = tuple(str(t) for t in kw["topics"])
             return cls(**kw)
-        except TypeError as exc:
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, FaultsError):
+                raise
             raise FaultsError(f"faults: {exc}") from None
 
     def to_json(self) -> dict[str, Any]:

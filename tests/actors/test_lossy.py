@@ -76,7 +76,7 @@ def test_a_message_lost_for_good_ends_with_one_line_naming_the_wait(tmp_path):
 
 def test_a_malformed_fault_plan_is_one_line():
     for bad in ({"drop": 2}, {"drop": 0.6, "delay": 0.6}, {"topics": ["control"]},
-                {"delay_s": -1}, {"often": 1}):
+                {"delay_s": -1}, {"often": 1}, [1, 2], {"drop": "x"}):
         with pytest.raises(FaultsError) as info:
             Faults.of(bad)
         assert "\n" not in str(info.value)
