@@ -132,6 +132,9 @@ def test_qlap_run_resume_in_embedded(capsys, tmp_path):
     assert code == 2
     assert_one_line(code, err, "lockstep")
     assert not (tmp_path / "rt").exists()
+    code, _, err = qlap(capsys, *base, "--placement", "processes", "--steps", "200",
+                        "--resume", str(final), "--out", str(tmp_path / "first"))
+    assert_one_line(code, err, "would write over the run")
     (final / "agent.json").write_text("{not json")
     code, _, err = qlap(capsys, *base, "--placement", "processes", "--steps", "200",
                         "--resume", str(final), "--out", str(tmp_path / "bad"))
