@@ -24,7 +24,9 @@ log = logging.getLogger("qlap.bus")
 
 FAULT_TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "batchctx")
 """The topics a plan may name: the lockstep chain and the learners' inputs (each kept in a
-replay log by its writer)."""
+replay log by its writer). Not ``control``: its commands and the world's end marker after a
+``quit`` have no replay log, so a lost one cannot be asked for again (a consumer left waiting
+for a step after the end is the watchdog's case)."""
 
 
 class FaultsError(ValueError):
