@@ -8,7 +8,9 @@ search (the contingency actor's learner, ``stats.json``/``stats.npz``;
 actor writes its part into ``checkpoints/step-N/`` at the same step as the executor (after
 step N − 1, in lockstep), each file atomically. The parts of the final state go to
 ``checkpoints/.final-parts/`` and the launcher moves them into ``final`` once every actor has
-ended (:func:`place_final_parts`); a ``final`` that links to ``step-N`` has them already.
+ended (:func:`place_final_parts`), or, in the distributed placement, the executor once the
+world and contingency actors have ended (:func:`gather_final_parts`); a ``final`` that links
+to ``step-N`` has them already.
 
 A run the watchdog stops (an embedded run's actors are then cancelled) keeps what was learned:
 the executor writes ``knowledge.json`` and ``checkpoints/final`` of its last complete step and
@@ -91,6 +93,28 @@ def place_final_parts(checkpoints: Path) -> None:
                 (parts / name).replace(final / name)
     # else: a link or a marker, whose step-N has the parts, or no final (the run failed)
     shutil.rmtree(parts, ignore_errors=True)
+
+
+FINAL_PARTS_WAIT_S = 60.0
+"""How long a distributed run's executor waits for the world and contingency actors to end."""
+
+
+async def gather_final_parts(session: Any, ctx: RunContext) -> None:
+    """The distributed placement has no launcher to move the final parts into ``final``: the
+    executor, its own outputs written, waits (at most :data:`FINAL_PARTS_WAIT_S`) until the
+    world and contingency actors have ended — their parts are written before their tokens go —
+    and moves the parts that reached its ``--out`` (the actors share it, e.g. on one machine
+    or a shared file system) into ``final``."""
+    if ctx.out is None or not _writes(ctx):
+        return
+    import trio
+
+    from qlap_runtime.bus.bridge import alive_actors
+
+    with trio.move_on_after(FINAL_PARTS_WAIT_S):
+        while (await alive_actors(session, ctx.run_id)) & {"world", "contingency"}:  # noqa: ASYNC110
+            await trio.sleep(0.05)
+    place_final_parts(Path(ctx.out) / "checkpoints")
 
 
 def stalled(ctx: RunContext) -> bool:

@@ -41,8 +41,9 @@ from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.rules import qstate_rule
 from qlap_runtime.runtime.runner import BoundaryCommands, Display, Runner
 
-from .checkpoint_parts import keep_on_stall
+from .checkpoint_parts import gather_final_parts, keep_on_stall
 from .convert import QStateCodec, batch_context
+from .resume import checkpoint_of
 
 NAME = "executor"
 
@@ -53,8 +54,11 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
     steps_done = 0
     with Actor(session, ctx, NAME, obey=True) as actor:
         resume = actor.resume
+        checkpoint = checkpoint_of(ctx, resume.path)
         agent = load_agent(resume.path) if resume.path is not None \
+            else load_agent(checkpoint) if checkpoint is not None \
             else Agent(specs, ctx.params, seed=ctx.seed)
+        agent.learner.pending_deltas.clear()    # a resumed run's: refused before the run
         agent.learner.auto_batches = False
         agent.learner.follower = True
         rejected: list[str] = list(resume.state.get("rejected", []))
@@ -84,6 +88,11 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
         commands = BoundaryCommands(actor.controls, runner, publish)
         try:
             await actor.start()
+            if checkpoint is not None and batch_kinds(ctx.params, ctx.start) \
+                    and ctx.start < ctx.end:
+                # A resumed run starting on a batch step: the batch reads the checkpoint's
+                # agent (the uninterrupted run's executor published it before motor(N - 1)).
+                contexts.put(ctx.start - 1, batch_context(agent, ctx.start - 1))
             async with trio.open_nursery() as nursery:
                 nursery.start_soon(commands.between_steps)
                 for t in actor.steps():
@@ -141,20 +150,25 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
             display.close()
             if metrics is not None:
                 metrics.finish(resume.step + 1 + steps_done, agent)
-    wall = time.perf_counter() - t_start
-    quit_at = actor.controls.last_step
-    result = actor.result(wait_s=round(deltas.wait_s, 3), rejected_observations=len(rejected),
-                          rejected_examples=rejected[:20], wall_s=wall, steps_done=steps_done,
-                          **({} if quit_at is None else {"quit_at_step": quit_at}))
-    if ctx.out is not None:
-        out = Path(ctx.out)
-        atomic_write_json(out / "knowledge.json", agent.knowledge())
-        # final links to the last step-N when nothing changed the agent since (no step, no
-        # goal command): the same state, not a copy.
-        same = last_saved[2] if last_saved[:2] == (agent.step_count,
-                                                   runner.agent_changes) else None
-        save_final_checkpoint(agent, out / "checkpoints", ctx.world, same_as=same)
-        summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed,
-                             steps_done if quit_at is not None else ctx.steps, wall, rejected)
-        atomic_write_json(out / "actors" / f"{NAME}.json", summary)
+        wall = time.perf_counter() - t_start
+        quit_at = actor.controls.last_step
+        result = actor.result(wait_s=round(deltas.wait_s, 3), rejected_observations=len(rejected),
+                              rejected_examples=rejected[:20], wall_s=wall, steps_done=steps_done,
+                              **({} if quit_at is None else {"quit_at_step": quit_at}))
+        if ctx.out is not None:
+            out = Path(ctx.out)
+            atomic_write_json(out / "knowledge.json", agent.knowledge())
+            # final links to the last step-N when nothing changed the agent since (no step, no
+            # goal command): the same state, not a copy.
+            same = last_saved[2] if last_saved[:2] == (agent.step_count,
+                                                       runner.agent_changes) else None
+            save_final_checkpoint(agent, out / "checkpoints", ctx.world, same_as=same)
+            summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed,
+                                 steps_done if quit_at is not None else ctx.steps, wall, rejected)
+            atomic_write_json(out / "actors" / f"{NAME}.json", summary)
+        # Outputs first (a failed world waits for the other actors' tokens, then reads
+        # them); then a batch actor behind may still ask for a lost batch context.
+        await actor.linger(("contingency", "landmarks"))
+        if ctx.placement == "distributed":      # no launcher: the executor places them
+            await gather_final_parts(session, ctx)
     return result

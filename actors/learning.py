@@ -34,6 +34,7 @@ from qlap_runtime.runtime.watchdog import Slot
 
 from .checkpoint_parts import final_dir, part_dir, save_statistics_part
 from .convert import QStateCodec, apply_batch_context
+from .resume import checkpoint_of
 
 ROLES = {"contingency": "dbn", "landmarks": "landmarks"}
 CONSUMERS = ("perception", "contingency", "landmarks", "executor")
@@ -48,8 +49,15 @@ async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
     batch_s: list[float] = []
     with Actor(session, ctx, role) as actor:
         resume = actor.resume
-        learner = load_learner(resume.path) if resume.path is not None \
-            else ModelLearner(specs, ctx.params)
+        checkpoint = checkpoint_of(ctx, resume.path)
+        if resume.path is not None:
+            learner = load_learner(resume.path)
+        elif checkpoint is not None:            # a resumed run: the learner with its stats
+            learner = load_learner(checkpoint)
+            learner.follower = False
+            learner.pending_deltas.clear()      # none: refused before the run otherwise
+        else:
+            learner = ModelLearner(specs, ctx.params)
         learner.auto_batches = False
         codec, n = QStateCodec(learner.table), len(learner.table)
         actor.input("qstate", window=ctx.replay_keep, rule=qstate_rule(codec.names))
@@ -100,6 +108,7 @@ async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
         actor.slot.finished()
         if role == "contingency":
             save_statistics_part(final_dir(ctx), learner)
+        await actor.linger(CONSUMERS)           # a consumer behind may ask for a lost delta
     return actor.result(batches=len(batch_s), batch_s=round(sum(batch_s), 3))
 
 
@@ -110,8 +119,9 @@ async def _context_before(contexts: StepInbox, t: int, start: int,
     has arrived (None: none yet)."""
     if realtime:
         return contexts.latest()
-    if t - 1 < start:
-        return None                       # before the run's first step: none published
+    if t - 1 < start - 1:
+        return None                       # never: a batch step is positive, and a resumed
+                                          # run's executor publishes batchctx(start - 1)
     contexts.drop_before(t - 1)           # batches of the other actor's kind only
     try:
         return await contexts.get(t - 1, at=t)
@@ -140,8 +150,9 @@ class Outbox:
 
     def publish(self, delta: Delta) -> None:
         msg = DeltaMsg.of(self.kind, delta)
-        self.log(msg)
-        self.output.pub.put(msg)
+        pub = self.output.pub
+        if pub.put(msg) or pub.faults is None or not pub.faults.lost:
+            self.log(msg)
         self.in_flight.discard(delta.computed_at)
         self.slot.busy(len(self.in_flight))
 

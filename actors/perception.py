@@ -9,6 +9,7 @@ import numpy as np
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.schema import QState, encode
+from qlap_runtime.qlap.checkpoint import load_learner
 from qlap_runtime.qlap.delta import AddLandmark
 from qlap_runtime.qlap.perception import InvalidObservation, Perception
 from qlap_runtime.qlap.quantity import Landmark
@@ -18,6 +19,7 @@ from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.snapshot import load_perception, save_perception
 
 from .convert import QStateCodec
+from .resume import checkpoint_of
 
 NAME = "perception"
 CONSUMERS = ("contingency", "landmarks", "executor")
@@ -60,8 +62,11 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
     sense_key = keys.key(ctx.run_id, "sense")
     with Actor(session, ctx, NAME) as actor:
         resume = actor.resume
+        checkpoint = checkpoint_of(ctx, resume.path)
         if resume.path is not None:
             load_perception(per, resume.path)
+        elif checkpoint is not None:            # a resumed run: the learner's perception
+            per = load_learner(checkpoint).perception
         # On the step chain: sense(t + 1) exists only once qstate(t) went out (window 1;
         # unknown variables are rejected by perceive, as in the synchronous loop).
         actor.input("sense", window=1)
@@ -101,4 +106,5 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
                                last_observed=last_observed,
                                qstate=[[s, encode(m).decode()] for s, m in out.log.entries(since)])
         actor.slot.finished()
+        await actor.linger(CONSUMERS)           # a learner behind may ask for a lost qstate
     return actor.result(rejected_observations=rejected_obs)

@@ -31,13 +31,14 @@ import trio
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import (
-    AliveWatcher,
     Publisher,
     RejectionCounter,
     TrioSubscriber,
+    alive_actors,
     declare_alive,
 )
-from qlap_runtime.bus.replay import ReplayLog
+from qlap_runtime.bus.faults import Faults
+from qlap_runtime.bus.replay import ReplayLog, fetch_replay
 from qlap_runtime.bus.schema import Control, Sense, WorldView
 from qlap_runtime.qlap.perception import MAX_ABS_VALUE
 from qlap_runtime.runtime.clock import LockstepClock, RealtimeClock
@@ -48,6 +49,7 @@ from qlap_runtime.runtime.rules import motor_rule
 from qlap_runtime.runtime.watchdog import slot_of
 
 from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
+from .resume import applied_motors, restore_world
 
 NAME = "world"
 OTHERS_END_S = 120.0
@@ -92,10 +94,15 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
         available = {v.name: int(getattr(v, "available_from", 0) or 0)
                      for v in world.variables}
         failed = None
-        obs = world.reset(seed=ctx.seed)
+        if ctx.resume_checkpoint is not None:  # a resumed run: the checkpoint's state
+            obs = restore_world(world, ctx.resume_checkpoint)
+            applied.update(applied_motors(ctx.resume_checkpoint))
+        else:
+            obs = world.reset(seed=ctx.seed)
         with declare_alive(session, ctx.run_id, NAME), \
                 TrioSubscriber(session, keys.key(ctx.run_id, "motor"), counter=counter) as sub, \
-                Publisher(session, ctx.run_id, "sense") as pub, \
+                Publisher(session, ctx.run_id, "sense", faults=Faults.of(ctx.faults),
+                          tag=NAME) as pub, \
                 Publisher(session, ctx.run_id, "world") as view, \
                 ReplayLog(session, ctx.run_id, "sense", ctx.replay_keep) as replay, \
                 Controls(session, ctx, counter) as controls, \
@@ -103,8 +110,12 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
             start = ctx.start
             # A motor for a step the world has not sensed yet cannot be the executor's: the
             # lockstep window is 0 (docs/runtime.md, "Rules on messages").
+            # A motor that does not come in time is asked for again from the executor's
+            # replay log (a lost message; a restarted executor).
             inbox = StepInbox(sub, first=start, slot=slot, topic="motor", counter=counter,
                               key=keys.key(ctx.run_id, "motor"),
+                              refill=None if ctx.realtime else _motor_refill(session, ctx,
+                                                                             counter),
                               window=None if ctx.realtime else 0,
                               rule=motor_rule(world.variables))
             last_view = 0.0
@@ -124,8 +135,8 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 if bad:
                     stats["rejected_senses"] = stats.get("rejected_senses", 0) + 1
                 sense = Sense(t, values, bool(getattr(world, "discontinuity", False)))
-                pub.put(sense)
-                replay.append(t, sense)             # for a perception actor restarted later
+                if pub.put(sense) or not (pub.faults and pub.faults.lost):
+                    replay.append(t, sense)         # for a perception actor restarted later
                 t0 = time.perf_counter()
                 motor = await clock.motor(inbox, t)
                 stats["wait_s"] += time.perf_counter() - t0
@@ -172,6 +183,10 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
     finally:
         world.close()
     stats["rejected"] = counter.snapshot().total
+    if inbox.refills:
+        stats["refills"] = inbox.refills
+    if pub.faults is not None:
+        stats["injected"] = pub.faults.counts()
     if failed is not None:
         await _after_failure(session, ctx, stats)
         raise failed
@@ -180,13 +195,19 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
 
 
 
+def _motor_refill(session, ctx: RunContext, counter: RejectionCounter):
+    async def refill(step: int) -> list:
+        return await fetch_replay(session, ctx.run_id, "motor", step, counter=counter)
+    return refill
+
+
 async def _after_failure(session, ctx: RunContext, stats: dict) -> None:
     """The world failed and published the end marker: wait for the other actors to end (their
     outputs written), then add the failure to the run's summary.json."""
-    with AliveWatcher(session, ctx.run_id) as watcher, trio.move_on_after(OTHERS_END_S):
-        with trio.move_on_after(2.0):       # the tokens that exist come first (history)
-            await watcher.wait_until(lambda alive: bool(alive - {NAME}))
-        await watcher.wait_until(lambda alive: not (alive - {NAME}))
+    with trio.move_on_after(OTHERS_END_S):
+        # Polled (a subscription's history can miss a token that goes while it answers).
+        while (await alive_actors(session, ctx.run_id)) - {NAME}:  # noqa: ASYNC110
+            await trio.sleep(0.05)
     if ctx.out is None:
         return
     import json

@@ -103,7 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--babble-steps", type=int, default=None,
                      help="length of the initial motor-babbling period (default: 20000, §6.1)")
     run.add_argument("--resume", type=Path, default=None,
-                     help="continue from an agent checkpoint directory")
+                     help="continue from an agent checkpoint directory (any placement's, in "
+                          "any placement; exact, or refused in one line)")
     run.add_argument("--quiet", action="store_true",
                      help="no progress bar (no progress lines)")
 
@@ -454,6 +455,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_run_inner(args: argparse.Namespace) -> int:
     from .agent_run import run_agent
     from .metrics import PlainProgress
+    from .placements.resume import in_flight_problem
     from .qlap import Params
     from .qlap.checkpoint import CheckpointError, load_agent
 
@@ -499,6 +501,10 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
             return 2
         try:
             agent = load_agent(args.resume)
+            problem = in_flight_problem(args.resume, agent.learner.params,
+                                        agent.step_count + 1, "sync")
+            if problem is not None:
+                raise CheckpointError(problem)
             restored = _restore_world(world, args.resume)
         except CheckpointError as exc:
             print(f"qlap run: --resume: {exc}", file=sys.stderr)
@@ -624,9 +630,6 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
 
     params = params_for_world(world, params)
     world.close()
-    if args.resume is not None:
-        print("qlap run: --resume is supported with --placement sync only", file=sys.stderr)
-        return 2
     if args.placement == "processes" and args.listen:
         print("qlap run: --listen goes with --placement embedded; with processes, outside "
               "subscribers connect to the router's endpoint, printed at the start",
@@ -635,13 +638,32 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     if not args.hz > 0:
         print(f"qlap run: --hz must be positive, got {args.hz}", file=sys.stderr)
         return 2
+    ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params,
+                     clock=args.clock, hz=args.hz, keep_checkpoints=args.keep_checkpoints,
+                     placement=args.placement)
+    if args.resume is not None:
+        # Exact or refused (one line, with what to use instead), before anything is written.
+        from .placements.resume import ResumeRefused, resume_context
+        from .qlap.checkpoint import CheckpointError
+
+        clash = resume_clash(args.resume, args.out)
+        if clash is not None:
+            print(f"qlap run: --resume: {clash}", file=sys.stderr)
+            return 2
+        try:
+            ctx = resume_context(ctx, args.resume)
+        except (ResumeRefused, CheckpointError) as exc:
+            print(f"qlap run: --resume: {exc}", file=sys.stderr)
+            return 2
+    params = ctx.params
     out = _prepare_out(args)
     if out is None:
         return 2
-    ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params, out=out,
-                     clock=args.clock, hz=args.hz, keep_checkpoints=args.keep_checkpoints)
+    ctx = ctx.with_(out=out)
+    resumed = f", from step {ctx.start} of {ctx.resume_checkpoint}" \
+        if ctx.resume_checkpoint is not None else ""
     print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
-          f"{args.placement}, {args.clock}, lag {params.batch_lag}", file=sys.stderr)
+          f"{args.placement}, {args.clock}, lag {params.batch_lag}{resumed}", file=sys.stderr)
     from .bus.auth import CREDENTIALS_FILE
 
     credentials = out / CREDENTIALS_FILE
@@ -652,7 +674,7 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     # from the metrics log the executor writes (the same counts as the summary).
     plain = None
     if not args.quiet and (args.placement == "processes" or not sys.stdout.isatty()):
-        plain = PlainProgress(args.steps)
+        plain = PlainProgress(args.steps, start=ctx.start)
         stop = threading.Event()
         follower = follow_metrics(out / METRICS_FILE, plain, stop)
     try:

@@ -1,17 +1,21 @@
 #!/usr/bin/env python3
 """Chaos trials of the processes placement (issue 13): each trial runs core2d with K SIGKILLs
 to random restartable actors at random steps — half of them right after the victim's snapshot,
-the others at a random step of the world — and checks that the run ends with knowledge
-byte-identical to the synchronous loop's, or with a one-line error in bounded time (the
-watchdog's ``stall_s``, or a restart budget spent). A trial that neither ends nor errs within
-``--limit-s`` is counted as hung (SIGTERM to the launcher).
+the others at a random step of the world — and, with ``--drop``/``--delay``, messages of the
+lockstep topics dropped or delayed on the way (``RunContext.faults``,
+``qlap_runtime/bus/faults.py``: the writer still logs them, so a consumer asks its replay log
+again), and checks that the run ends with knowledge byte-identical to the synchronous loop's,
+or with a one-line error in bounded time (the watchdog's ``stall_s``, or a restart budget
+spent). A trial that neither ends nor errs within ``--limit-s`` is counted as hung (SIGTERM to
+the launcher).
 
     scripts/chaos.py --trials 20 --kills 3 --steps 20000
+    scripts/chaos.py --trials 5 --kills 3 --steps 20000 --drop 0.002 --delay 0.002
     scripts/chaos.py --trials 3 --kills 2 --steps 3000       # a few minutes
 
-Dropped and delayed messages are not injected yet (the BLOCK congestion control of the step
-chain does not drop; a restart is the loss this exercises). Prints one line per trial and a
-JSON summary.
+``--lost`` keeps the dropped messages out of the replay logs too: nothing can recover them, so
+every such trial must end with the watchdog's one-line error naming the actor and the step it
+waits for (never a hang). Prints one line per trial and a JSON summary.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import worlds
 from qlap_runtime import agent_run
 from qlap_runtime.agent_run import params_for_world
+from qlap_runtime.bus.faults import FAULT_TOPICS, Faults
 from qlap_runtime.placements.launcher import run_processes
 from qlap_runtime.qlap import Params
 from qlap_runtime.runtime.context import RunContext
@@ -109,9 +114,13 @@ def trial(i: int, args: argparse.Namespace) -> dict:
     killer = Killer(plan(rng, args.kills, args.steps, args.snapshot_every))
     with tempfile.TemporaryDirectory(prefix="qlap-chaos-") as tmp:
         w = worlds.make(WORLD)
+        faults = None
+        if args.drop or args.delay:
+            faults = Faults(args.drop, args.delay, args.delay_s,
+                            tuple(args.fault_topics.split(",")), seed, args.lost).to_json()
         ctx = RunContext(f"chaos-{i}", WORLD, args.steps, seed, params_for_world(w, params),
                          out=Path(tmp), snapshot_every=args.snapshot_every,
-                         stall_s=args.stall_s)
+                         stall_s=args.stall_s, faults=faults)
         w.close()
         timer = threading.Timer(args.limit_s, lambda: os.kill(os.getpid(), signal.SIGTERM))
         timer.start()
@@ -122,6 +131,11 @@ def trial(i: int, args: argparse.Namespace) -> dict:
             got = (Path(tmp) / "knowledge.json").read_text()
             outcome = "identical" if got == expected else "different"
             detail = f"restarts {summary['restarts']}"
+            if faults is not None:
+                actors = summary["actors"].values()
+                dropped = sum(a.get("injected", {}).get("dropped", 0) for a in actors)
+                delayed = sum(a.get("injected", {}).get("delayed", 0) for a in actors)
+                detail += f"; dropped {dropped}, delayed {delayed} messages"
         except KeyboardInterrupt:
             outcome, detail = "hung", f"no end within {args.limit_s:.0f} s"
         except Exception as exc:                    # the run's one-line error
@@ -143,6 +157,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stall-s", type=float, default=30.0)
     p.add_argument("--limit-s", type=float, default=900.0,
                    help="a trial still running after this is counted as hung")
+    p.add_argument("--drop", type=float, default=0.0,
+                   help="probability that a message of --fault-topics is dropped")
+    p.add_argument("--delay", type=float, default=0.0,
+                   help="probability that such a message is delayed by --delay-s")
+    p.add_argument("--delay-s", type=float, default=0.2)
+    p.add_argument("--fault-topics", default=",".join(FAULT_TOPICS),
+                   help="comma-separated topics the faults hit (default: every lockstep "
+                        "topic)")
+    p.add_argument("--lost", action="store_true",
+                   help="dropped messages are missing from the replay logs too (only the "
+                        "watchdog's error can end such a trial)")
     args = p.parse_args(argv)
     results = []
     for i in range(args.trials):
@@ -153,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     counts = {k: sum(r["outcome"] == k for r in results)
               for k in ("identical", "different", "error", "hung")}
     print(json.dumps({"trials": args.trials, "kills": args.kills, "steps": args.steps,
-                      **counts}))
+                      "drop": args.drop, "delay": args.delay, **counts}))
     return 0 if counts["different"] == 0 and counts["hung"] == 0 else 1
 
 

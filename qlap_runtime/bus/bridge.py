@@ -31,6 +31,7 @@ import trio
 import zenoh
 
 from . import keys
+from .faults import Faults
 from .schema import TOPIC_TYPES, Message, MessageError, Rejected, decode, encode
 
 log = logging.getLogger("qlap.bus")
@@ -49,6 +50,7 @@ LOCKSTEP_TOPICS = frozenset({"sense", "qstate", "motor", "delta/dbn", "delta/lan
 """Topics on the lockstep chain, published ``express`` (sent at once, not batched)."""
 
 T = TypeVar("T")
+_DONE: Any = object()
 
 
 def congestion_control(topic: str) -> zenoh.CongestionControl:
@@ -378,7 +380,8 @@ class Publisher:
 
     def __init__(self, session: zenoh.Session, run_id: str, topic: str, *,
                  congestion: zenoh.CongestionControl | None = None,
-                 priority: zenoh.Priority | None = None, express: bool | None = None) -> None:
+                 priority: zenoh.Priority | None = None, express: bool | None = None,
+                 faults: Faults | None = None, tag: str = "") -> None:
         self.key = keys.key(run_id, topic)
         self.topic = topic
         self.msg_type = TOPIC_TYPES[topic]
@@ -391,15 +394,21 @@ class Publisher:
         self._routes = LocalRoutes.of(session)
         self._local: tuple[int, list[TrioSubscriber]] = (-1, [])
         self.sent = 0
+        self.faults = faults.injector(topic, tag) if faults is not None else None
+        """Injected drops and delays (tests and the chaos harness only; :mod:`.faults`)."""
 
-    def put(self, msg: Message) -> None:
+    def put(self, msg: Message) -> bool:
         """Encode and publish ``msg``; a message of the wrong type or with a NaN raises
-        (:class:`TypeError` / :class:`~.schema.MessageError`): that is a bug in the caller."""
+        (:class:`TypeError` / :class:`~.schema.MessageError`): that is a bug in the caller.
+        False only when an injected fault dropped it (:mod:`.faults`)."""
         if type(msg) is not self.msg_type:
             raise TypeError(f"{self.key} carries {self.msg_type.__name__}, "
                             f"not {type(msg).__name__}")
-        self._send(encode(msg))
         self.sent += 1
+        if self.faults is None:
+            self._send(encode(msg))
+            return True
+        return self.faults.put(self._send, encode(msg))   # lost or late for everyone
 
     def _send(self, payload: bytes) -> None:
         """Hand ``payload`` to the subscribers of this session, then put it on Zenoh for every
@@ -432,6 +441,8 @@ class Publisher:
         self._send(payload)
 
     def close(self) -> None:
+        if self.faults is not None:
+            self.faults.close()
         try:
             self._pub.undeclare()
         except zenoh.ZError:  # pragma: no cover
@@ -514,6 +525,33 @@ class AliveWatcher:
         self.close()
 
 
+async def alive_actors(session: zenoh.Session, run_id: str, *,
+                       query_timeout: float = 2.0) -> set[str]:
+    """The actors of a run whose liveliness token exists now (a query, not a subscription:
+    no race with a token that goes while a subscriber's history is being answered)."""
+    inbox: TrioInbox[Any] = TrioInbox()
+
+    def on_reply(reply: zenoh.Reply) -> None:
+        try:
+            ok = reply.ok
+            if ok is not None:
+                inbox.push(str(ok.key_expr).rsplit("/", 1)[-1])
+        except Exception:
+            log.exception("liveliness reply callback failed")
+
+    session.liveliness().get(keys.alive_pattern(run_id),
+                             zenoh.handlers.Callback(on_reply, lambda: inbox.push(_DONE)),
+                             timeout=query_timeout)
+    out: set[str] = set()
+    with trio.move_on_after(query_timeout + 1.0):
+        while True:
+            for item in await inbox.get_batch():
+                if item is _DONE:
+                    return out
+                out.add(item)
+    return out
+
+
 # --------------------------------------------------------------------------- late joiners
 
 
@@ -564,9 +602,6 @@ class StateQueryable:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-_DONE: Any = object()
 
 
 async def fetch(session: zenoh.Session, selector: str, *, query_timeout: float = 2.0,

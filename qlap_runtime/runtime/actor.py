@@ -12,7 +12,9 @@ An :class:`Actor` owns, for one actor of one run:
 - **resume and snapshots**: where it starts (:class:`Resume`, from the supervisor's restart
   fields of the run context), the replay of what it missed (:meth:`Actor.start`), and its
   snapshots at the boundaries the run schedules (:meth:`Actor.snapshot_due`,
-  :meth:`Actor.snapshot`), with their statistics in :meth:`Actor.result`.
+  :meth:`Actor.snapshot`), with their statistics in :meth:`Actor.result`;
+- **the end**: :meth:`Actor.linger` withdraws the token when the loop is done and keeps the
+  replay logs open until the actor's consumers are done too.
 
 Use as ``with Actor(session, ctx, name) as actor:``; everything is closed on exit.
 """
@@ -31,6 +33,7 @@ import trio
 
 from ..bus import keys
 from ..bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
+from ..bus.faults import Faults
 from ..bus.replay import ReplayLog, fetch_replay
 from ..bus.schema import Message
 from . import snapshot as snap
@@ -41,6 +44,11 @@ from .rules import Rule
 from .watchdog import Slot, slot_of
 
 log = logging.getLogger("qlap.actors")
+
+LINGER_S = 30.0
+"""How long a writer keeps its replay logs open after its last step for consumers that lag
+(:meth:`Actor.linger`)."""
+LINGER_POLL_S = 0.05
 
 
 @dataclass
@@ -70,15 +78,17 @@ class Resume:
 class Output:
     """One output topic: published, and kept in a replay log for restarted consumers."""
 
-    def __init__(self, session: Any, ctx: RunContext, topic: str) -> None:
-        self.pub = Publisher(session, ctx.run_id, topic)
+    def __init__(self, session: Any, ctx: RunContext, topic: str, actor: str = "") -> None:
+        self.pub = Publisher(session, ctx.run_id, topic, faults=Faults.of(ctx.faults),
+                             tag=actor)
         self.log = ReplayLog(session, ctx.run_id, topic, ctx.replay_keep)
         self.key = keys.key(ctx.run_id, topic)
 
     def put(self, step: int, msg: Message) -> None:
-        """Publish ``msg`` and log it under ``step``."""
-        self.pub.put(msg)
-        self.log.append(step, msg)
+        """Publish ``msg`` and log it under ``step`` (not logged only when an injected fault
+        loses it for good, :class:`~qlap_runtime.bus.faults.Faults` ``lost``)."""
+        if self.pub.put(msg) or self.pub.faults is None or not self.pub.faults.lost:
+            self.log.append(step, msg)
 
     def close(self) -> None:
         self.log.close()
@@ -101,6 +111,8 @@ class Actor:
         """The primary input (the first :meth:`input`)."""
         self._inputs: list[tuple[StepInbox, str]] = []
         self._deltas: DeltaInbox | None = None
+        self._outputs: list[Output] = []
+        self._token: Any = None
         self.snapshot_times: list[float] = []
 
     # ------------------------------------------------------------------------- set-up
@@ -110,8 +122,11 @@ class Actor:
         point); ``window``: the lockstep window (ignored under the realtime clock)."""
         sub = self._stack.enter_context(
             TrioSubscriber(self.session, keys.key(self.ctx.run_id, topic), counter=self.counter))
+        # In lockstep a step that does not come in time is asked for again from the writer's
+        # replay log (a lost message; a restarted writer or consumer).
+        refill = None if self.ctx.realtime else self._refill(topic)
         inbox = StepInbox(sub, first=self.resume.step + 1 if first is None else first,
-                          end=self.controls, slot=self.slot, topic=topic,
+                          refill=refill, end=self.controls, slot=self.slot, topic=topic,
                           counter=self.counter, key=keys.key(self.ctx.run_id, topic),
                           window=None if self.ctx.realtime else window, rule=rule)
         self._inputs.append((inbox, topic))
@@ -127,8 +142,9 @@ class Actor:
 
     def output(self, topic: str) -> Output:
         """A published topic with its replay log."""
-        out = Output(self.session, self.ctx, topic)
+        out = Output(self.session, self.ctx, topic, self.name)
         self._stack.callback(out.close)
+        self._outputs.append(out)
         return out
 
     def publisher(self, topic: str) -> Publisher:
@@ -147,7 +163,8 @@ class Actor:
     async def start(self) -> None:
         """Declare the actor alive (every subscription exists) and, when restarted, restore
         its delta book and fetch what it missed from the writers' replay logs."""
-        self._stack.enter_context(declare_alive(self.session, self.ctx.run_id, self.name))
+        self._token = declare_alive(self.session, self.ctx.run_id, self.name)
+        self._stack.callback(self._undeclare)
         resume = self.resume
         if not resume.restarted:
             return
@@ -167,6 +184,31 @@ class Actor:
             return await fetch_replay(self.session, self.ctx.run_id, topic, step,
                                       counter=self.counter)
         return refill
+
+    def _undeclare(self) -> None:
+        token, self._token = self._token, None
+        if token is not None:
+            try:
+                token.undeclare()
+            except Exception:                       # pragma: no cover - session closed
+                pass
+
+    async def linger(self, consumers: tuple[str, ...], limit_s: float = LINGER_S) -> None:
+        """After the last step: no longer alive as a consumer (the token goes), but the replay
+        logs stay open until every actor of ``consumers`` has ended its loop too (its token
+        gone), at most ``limit_s``: a consumer that lags (a learner behind the step chain)
+        can still ask again for a message it lost near the end of the run."""
+        self._undeclare()
+        wanted = set(consumers) - {self.name}
+        if self.ctx.realtime or not self._outputs or not wanted:
+            return
+        from ..bus.bridge import alive_actors
+
+        with trio.move_on_after(limit_s):
+            # Polled: the tokens are another process's; a subscription's history can miss
+            # a token that goes while it is answered.
+            while await alive_actors(self.session, self.ctx.run_id) & wanted:  # noqa: ASYNC110
+                await trio.sleep(LINGER_POLL_S)
 
     # ------------------------------------------------------------------------- the loop
     def steps(self) -> range:
@@ -222,6 +264,13 @@ class Actor:
                                "snapshot_max_s": round(max(times, default=0.0), 4)}
         if self.resume.restarted:
             out["resumed_from_step"] = self.resume.step
+        refills = sum(i.refills for i, _ in self._inputs) \
+            + (self._deltas.refills if self._deltas is not None else 0)
+        if refills:
+            out["refills"] = refills
+        injected = [o.pub.faults.counts() for o in self._outputs if o.pub.faults is not None]
+        if injected:
+            out["injected"] = {k: sum(c[k] for c in injected) for k in ("dropped", "delayed")}
         return out
 
     # ------------------------------------------------------------------------- lifecycle

@@ -54,6 +54,13 @@ class RunContext:
     restarted: bool = False
     """This actor was restarted by the supervisor (from :attr:`resume_from`, or the start)."""
     resume_from: Path | None = None
+    resume_checkpoint: Path | None = None
+    """The checkpoint a resumed run starts from (``qlap run --resume``; its step is
+    :attr:`start_step`): every actor without a snapshot of its own loads it
+    (:mod:`actors.resume`)."""
+    faults: dict[str, Any] | None = None
+    """Messages to drop or delay (tests and the chaos harness only; the JSON form of
+    :class:`~qlap_runtime.bus.faults.Faults`); None: none."""
     board: Any = field(default=None, repr=False, compare=False)
     """The run's progress board (:mod:`~qlap_runtime.runtime.watchdog`), set by the launcher
     in each process; not part of the JSON form."""
@@ -113,7 +120,8 @@ class RunContext:
             raise ValueError(f"unknown run context fields: {sorted(unknown)}")
         kw: dict[str, Any] = dict(d)
         kw["params"] = Params.from_dict(d["params"])
-        for name in ("out", "snapshot_dir", "credentials", "resume_from"):
+        for name in ("out", "snapshot_dir", "credentials", "resume_from",
+                     "resume_checkpoint"):
             if kw.get(name) is not None:
                 kw[name] = Path(kw[name])
         return cls(**kw)

@@ -3,8 +3,8 @@
 :class:`StepInbox` hands out one topic's messages by step (``await get(t)``) and
 :class:`DeltaInbox` the knowledge deltas due at a step boundary. Both apply the rules on
 messages (:mod:`.rules`) before anything else, bound what may wait for later steps, drop what a
-restarted writer publishes again, report every wait on the watchdog's board, and, for a
-restarted actor, ask the writers' replay logs again when idle.
+restarted writer publishes again, report every wait on the watchdog's board, and, in lockstep,
+ask the writers' replay logs again for what does not come in time (a lost message, a restart).
 """
 
 from __future__ import annotations
@@ -34,9 +34,37 @@ MAX_PENDING_BYTES = 64 * 2**20
 run's own messages never come near it (a core2d ``qstate`` is ~0.5 kB and the window a few
 thousand steps); a sender flooding valid far-future messages is rejected beyond it."""
 
-REFILL_AFTER_S = 1.0
-"""A restarted actor waiting this long for a step while later steps are buffered asks the
-writer's replay log again (a message put while its subscription was still propagating)."""
+REFILL_FIRST_S = 0.1
+"""A lockstep consumer whose step has not arrived this long after it started waiting asks the
+writer's replay log again (a message lost on the way, or put while a restarted consumer's
+subscription was still propagating); the wait doubles after every fruitless ask, up to
+:data:`REFILL_MAX_S`, so an idle run (paused) costs one small query every few seconds."""
+REFILL_GAP_S = 0.05
+"""The first ask comes this soon when a later step is already held: the step was lost."""
+REFILL_MAX_S = 2.0
+
+
+class Refills:
+    """When a waiting inbox asks the replay logs again (:data:`REFILL_FIRST_S`): a deadline
+    that starts short and doubles after every ask."""
+
+    def __init__(self, gap: bool) -> None:
+        self.wait = REFILL_GAP_S if gap else REFILL_FIRST_S
+        self.deadline = trio.current_time() + self.wait
+        self.asked = 0
+
+    def gap(self) -> None:
+        """A later step arrived while this one is missing: ask soon, unless already asked."""
+        if not self.asked:
+            self.deadline = min(self.deadline, trio.current_time() + REFILL_GAP_S)
+
+    def due(self) -> bool:
+        return trio.current_time() >= self.deadline
+
+    def asked_now(self) -> None:
+        self.asked += 1
+        self.wait = min(2 * max(self.wait, REFILL_FIRST_S), REFILL_MAX_S)
+        self.deadline = trio.current_time() + self.wait
 
 
 class StepInbox:
@@ -44,7 +72,8 @@ class StepInbox:
 
     Steps below the next one expected are dropped: a writer restarted from a snapshot publishes
     again the steps after its snapshot, which this consumer may already have consumed.
-    ``refill(step)`` (a restarted actor's fetch from the writer's replay log) fills gaps.
+    ``refill(step)`` (a fetch from the writer's replay log) fills gaps: a step that does not
+    come in time (:class:`Refills`) is asked for again.
 
     Rules (docs/runtime.md, "Rules on messages"): a live message more than ``window`` steps
     after the next step expected (or the last one fetched from a replay log) is outside the
@@ -79,6 +108,8 @@ class StepInbox:
         one the world announced (``quit``)."""
         self.duplicates = 0
         """Messages dropped because their step was already consumed."""
+        self.refills = 0
+        """Times the replay log was asked again for a step that did not come."""
 
     def add(self, msg: Any, size: int = 0, live: bool = True) -> bool:
         """Keep ``msg`` for its step (``size``: its payload bytes; ``live``: from the
@@ -146,24 +177,32 @@ class StepInbox:
         return self.buf.pop(step)
 
     async def _wait_for(self, step: int) -> None:
+        refills = Refills(any(s > step for s in self.buf)) if self.refill is not None else None
         while step not in self.buf:
             end = self.end
             if end is not None and end.ended(step):
                 raise RunEnded(end.last_step)       # type: ignore[arg-type]
             batch: list = []
             with end.interruptible() if end is not None else nullcontext():
-                if self.refill is None:
+                if refills is None:
                     batch = await self.sub.receive_batch()
                 else:
-                    with trio.move_on_after(REFILL_AFTER_S):
+                    with trio.move_on_at(refills.deadline):
                         batch = await self.sub.receive_batch()
-            # A restarted actor idle for REFILL_AFTER_S asks the replay log again: a gap, or
-            # a writer that was itself restarting when this actor first asked (chaos trials).
-            if self.refill is not None and not batch and not (end and end.ended(step)):
-                for msg in await self.refill(step):
-                    self.add(msg, live=False)
             for r in batch:
                 self.add(r.msg, len(r.payload))
+            if refills is None or step in self.buf or (end and end.ended(step)):
+                continue
+            if batch and any(s > step for s in self.buf):
+                refills.gap()
+            # Not here in time: ask the replay log again (a lost message, or a writer that was
+            # itself restarting when a restarted actor first asked: chaos trials).
+            if refills.due():
+                assert self.refill is not None
+                for msg in await self.refill(step):
+                    self.add(msg, live=False)
+                refills.asked_now()
+                self.refills += 1
 
     async def fill_from_replay(self, refill: Callable[[int], Awaitable[list]]) -> int:
         """Add the writer's logged messages from :attr:`next` on (a restarted consumer, after
@@ -193,6 +232,7 @@ class DeltaInbox:
     def __init__(self, session: Any, ctx: RunContext, counter: RejectionCounter,
                  slot: Slot | None = None, n_vars: int | None = None) -> None:
         self.book = DeltaBook(ctx.params)
+        self.book.last = ctx.start - 1             # a resumed run applied those before
         self.slot = slot if slot is not None else Slot()
         self.counter = counter
         self.keys = {k: keys.key(ctx.run_id, f"delta/{k}") for k in ("dbn", "landmarks")}
@@ -205,8 +245,12 @@ class DeltaInbox:
         self.wait_s = 0.0
         self.realtime = ctx.realtime
         self.stale = 0
+        self.refills = 0
         self.refill: Callable[[], Awaitable[list]] | None = None
-        """Set for a restarted actor (:meth:`catch_up`): fetch the delta logs again."""
+        """Fetches the learners' delta logs again when a due delta does not come (lockstep;
+        None under the realtime clock, where deltas apply when they arrive)."""
+        if not ctx.realtime:
+            self.refill = self._refill_from(session, ctx, counter)
 
     def add(self, msg: DeltaMsg, size: int = 0, live: bool = True) -> None:
         """Keep a delta until it is due (counted and dropped if it breaks a rule)."""
@@ -255,13 +299,17 @@ class DeltaInbox:
         """Keep every delta that has arrived, without waiting."""
         self.take(self.sub.receive_nowait())
 
+    @staticmethod
+    def _refill_from(session: Any, ctx: RunContext,
+                     counter: RejectionCounter) -> Callable[[], Awaitable[list]]:
+        async def refill() -> list:
+            return await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
+        return refill
+
     async def catch_up(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> int:
         """A restarted actor: add every delta the learners' replay logs hold (after
         subscribing, so none published meanwhile is lost); return how many came back."""
-        async def refill() -> list:
-            return await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
-
-        self.refill = refill
+        self.refill = refill = self.refill or self._refill_from(session, ctx, counter)
         msgs = await refill()
         for msg in msgs:
             self.add(msg, live=False)
@@ -272,21 +320,24 @@ class DeltaInbox:
         if not self.book.ready(step):
             self.book.waits += 1
             t0 = time.perf_counter()
+            refills = Refills(False) if self.refill is not None else None
             while not self.book.ready(step):
                 computed, kind = self.book.missing(step)[0]
                 with self.slot.waiting(f"delta/{kind}", computed, step):
-                    if self.refill is None:
+                    if refills is None:
                         self.take(await self.sub.receive_batch())
                         continue
-                    # Restarted: idle for REFILL_AFTER_S, ask the learners' replay logs
-                    # again (a learner that was itself restarting when this actor asked).
+                    # Not here in time: ask the learners' replay logs again (a lost delta, or
+                    # a learner that was itself restarting when a restarted actor asked).
                     batch: list = []
-                    with trio.move_on_after(REFILL_AFTER_S):
+                    with trio.move_on_at(refills.deadline):
                         batch = await self.sub.receive_batch()
                     self.take(batch)
-                    if not batch:
-                        for msg in await self.refill():
+                    if not self.book.ready(step) and refills.due():
+                        for msg in await self.refill():        # type: ignore[misc]
                             self.add(msg, live=False)
+                        refills.asked_now()
+                        self.refills += 1
             self.wait_s += time.perf_counter() - t0
         return self._popped(self.book.pop_due(step))
 

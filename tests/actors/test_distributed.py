@@ -44,7 +44,10 @@ def test_router_and_five_actor_processes_learn_what_the_synchronous_loop_learns(
                   str(STEPS), "--seed", str(SEED), "--lag", str(LAG), "--babble-steps",
                   str(BABBLE)]
         for name in ("perception", "contingency", "landmarks", "executor", "world"):
-            extra = ["--out", str(tmp_path)] if name == "executor" else []
+            # The world and contingency actors write their parts of the final checkpoint
+            # into the same --out (one machine here; a shared directory across machines).
+            extra = ["--out", str(tmp_path)] if name in ("executor", "world",
+                                                         "contingency") else []
             procs.append(subprocess.Popen(qlap("actor", name, *common, *extra),
                                           stdout=subprocess.PIPE, stderr=subprocess.PIPE))
         for p in procs:
@@ -65,6 +68,10 @@ def test_router_and_five_actor_processes_learn_what_the_synchronous_loop_learns(
     world.close()
     expected = knowledge_json(agent)
     assert (tmp_path / "knowledge.json").read_text() == expected
+    final = tmp_path / "checkpoints" / "final"
+    assert {"agent.json", "world.json", "stats.json", "stats.npz"} <= \
+        {p.name for p in final.iterdir()}
+    assert not (tmp_path / "checkpoints" / ".final-parts").exists()
 
 
 def test_actor_rejects_bad_arguments():
