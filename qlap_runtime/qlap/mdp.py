@@ -1040,15 +1040,7 @@ def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPActi
     cols = action_map(old_actions, new_actions, maps)
     known = np.flatnonzero(cols >= 0)
     if dropped:
-        acc = np.zeros((new.n_states, known.size))
-        cnt = np.zeros((new.n_states, known.size))
-        for combo in np.ndindex(*(old.sizes[i] for i in dropped)):
-            for i, q in zip(dropped, combo, strict=True):
-                old_vals[:, i] = q
-            block = q_old[np.ix_(_ravel(old_vals, old.sizes), cols[known])]
-            finite = np.isfinite(block)
-            acc += np.where(finite, block, 0.0)
-            cnt += finite
+        acc, cnt = _merged_ancestors(q_old, old, old_vals, dropped, cols[known])
         has = cnt > 0
     else:
         # One ancestor per state (the usual growth): its values, as the mean of one value
@@ -1070,6 +1062,34 @@ def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPActi
     sub[ok] = acc[ok] / cnt[ok] if dropped else block[ok] + 0.0
     out[:, known] = sub
     return out
+
+
+def _merged_ancestors(q_old: np.ndarray, old: PlanStateSpace, old_vals: np.ndarray,
+                      dropped: Sequence[int], cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sum and count of the finite Q-values of the old states that merge into each new state
+    when the old variables at positions ``dropped`` leave the space (:func:`grow_q`), for the
+    old action columns ``cols``.
+
+    ``old_vals`` holds each new state's values of the kept old variables (the dropped columns
+    are ignored). The ancestors are gathered at once (their state index is the kept variables'
+    part plus each combination's part), and the sum is accumulated in the order of
+    ``np.ndindex`` over the dropped values, from 0.0, so every sum is bit for bit the one of
+    adding the combinations one after another.
+    """
+    strides = np.asarray(old.strides, dtype=np.int64)
+    kept = np.ones(len(old.vars), dtype=bool)
+    kept[list(dropped)] = False
+    base = old_vals[:, kept] @ strides[kept] if kept.any() else \
+        np.zeros(old_vals.shape[0], dtype=np.int64)
+    combos = np.indices([old.sizes[i] for i in dropped]).reshape(len(dropped), -1).T
+    offsets = combos @ strides[list(dropped)]                  # np.ndindex order (C order)
+    blocks = q_old[(offsets[:, None] + base[None, :])[:, :, None], cols[None, None, :]]
+    finite = np.isfinite(blocks)
+    values = np.where(finite, blocks, 0.0)
+    acc = np.zeros(blocks.shape[1:])
+    for block in values:
+        acc += block
+    return acc, finite.sum(axis=0).astype(float)
 
 
 def descendant_state(old: PlanStateSpace, new: PlanStateSpace,
