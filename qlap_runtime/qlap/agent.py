@@ -371,12 +371,14 @@ class Agent:
         sizes = self._sizes()
         perception = self.learner.perception
         quantize = perception.quantize_columns
-        version = perception.landmarks_version
         for pid in sorted(self.plans):
             plan = self.plans[pid]
             dbn = self.learner.dbns[plan.dbn_id]
-            plan.recount(quantize, sizes, version)
             cands = [v for v in self.learner._candidates(dbn) if v not in dbn.context]
+            # The quantity spaces the second-order DBN's counts and its C_o search read: those
+            # of the candidates and of C_o (landmarks of other variables leave them unchanged).
+            version = perception.landmark_signature(sorted({*cands, *plan.context_o}))
+            plan.recount(quantize, sizes, version)
             before = plan.context_o
             if plan.update_context(cands, quantize, sizes, version) and \
                     plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
