@@ -203,7 +203,8 @@ def test_gain_bounds_kept_while_their_inputs_hold_and_equal_to_the_direct_comput
         return learner._gain_bounds(dbn, X, ok, cols, 9)
 
     def same(a, b) -> bool:
-        return all(x.tobytes() == y.tobytes() and x.shape == y.shape for x, y in zip(a, b))
+        return all(x.tobytes() == y.tobytes() and x.shape == y.shape
+                   for x, y in zip(a, b, strict=True))
 
     first = cached()
     assert same(first, direct())
