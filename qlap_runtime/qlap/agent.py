@@ -655,17 +655,16 @@ class Agent:
             return out, weights
         groups = self._plan_groups()
         q_list = p.q.tolist()
-        known = groups.known(p.q)
-        for key, plans, rows in zip(groups.keys, groups.groups, groups.rows, strict=True):
-            if q_list[key[0]] == key[1]:           # achieved now (:meth:`_achieved`)
-                continue
-            plans = self._from_side(key, [pl for pl, r in zip(plans, rows, strict=True)
-                                          if known[r]], q_list)
-            if not plans:
-                continue
+        # Actions not achieved now (:meth:`_achieved`) with a usable plan (known state, from
+        # the current side: :meth:`_usable_plans`), tested for all plans at once.
+        found, usable = groups.usable(p.q, self._magnitude_vars())
+        for g in found:
+            key = groups.keys[g]
             stats = self.actions[key]
             w = self._iac_weight(stats)
             if w is None:                 # fewer than 50 calls: eq. 6.2 with the chosen plan
+                plans = [pl for pl, r in zip(groups.groups[g], groups.rows[g], strict=True)
+                         if usable[r]]
                 idx = self._pick_plan(plans, p, q_list)
                 rel_os = None if idx is None else \
                     plans[idx].rel_state(self._state_cell(plans[idx].context_o, q_list))
@@ -673,6 +672,14 @@ class Agent:
             out.append(key)
             weights.append(w)
         return out, weights
+
+    def _magnitude_vars(self) -> frozenset[int]:
+        """The magnitude variables (their actions have a plan from each side, §5.3)."""
+        cached = self.__dict__.get("_magnitudes")
+        if cached is None:
+            cached = self._magnitudes = frozenset(
+                v.index for v in self.table if v.kind is Kind.MAGNITUDE)
+        return cached
 
     def _plan_groups(self) -> PlanGroups:
         """The plans by action (:class:`~.planner.PlanGroups`), kept while they still hold."""

@@ -1071,25 +1071,26 @@ def _merged_ancestors(q_old: np.ndarray, old: PlanStateSpace, old_vals: np.ndarr
     old action columns ``cols``.
 
     ``old_vals`` holds each new state's values of the kept old variables (the dropped columns
-    are ignored). The ancestors are gathered at once (their state index is the kept variables'
-    part plus each combination's part), and the sum is accumulated in the order of
-    ``np.ndindex`` over the dropped values, from 0.0, so every sum is bit for bit the one of
-    adding the combinations one after another.
+    are ignored). The merge is a function of those values alone, so it is computed once per
+    combination of kept values (the old table with the dropped variables' axes first) and
+    then read for each new state. Each sum is accumulated in the order of ``np.ndindex`` over
+    the dropped values, from 0.0, so it is bit for bit the one of adding the combinations one
+    after another.
     """
-    strides = np.asarray(old.strides, dtype=np.int64)
-    kept = np.ones(len(old.vars), dtype=bool)
-    kept[list(dropped)] = False
-    base = old_vals[:, kept] @ strides[kept] if kept.any() else \
-        np.zeros(old_vals.shape[0], dtype=np.int64)
-    combos = np.indices([old.sizes[i] for i in dropped]).reshape(len(dropped), -1).T
-    offsets = combos @ strides[list(dropped)]                  # np.ndindex order (C order)
-    blocks = q_old[(offsets[:, None] + base[None, :])[:, :, None], cols[None, None, :]]
-    finite = np.isfinite(blocks)
-    values = np.where(finite, blocks, 0.0)
-    acc = np.zeros(blocks.shape[1:])
+    dropped = list(dropped)
+    kept = [i for i in range(len(old.vars)) if i not in dropped]
+    grid = np.asarray(q_old, dtype=float)[:, cols].reshape(*old.sizes, len(cols))
+    grid = np.moveaxis(grid, dropped, list(range(len(dropped))))  # C order: np.ndindex's
+    n_combos = int(np.prod([old.sizes[i] for i in dropped], dtype=np.int64))
+    grid = grid.reshape(n_combos, -1, len(cols))
+    finite = np.isfinite(grid)
+    values = np.where(finite, grid, 0.0)
+    acc = np.zeros(values.shape[1:])
     for block in values:
         acc += block
-    return acc, finite.sum(axis=0).astype(float)
+    cnt = finite.sum(axis=0).astype(float)
+    rows = _ravel(old_vals[:, kept], [old.sizes[i] for i in kept])
+    return acc[rows], cnt[rows]
 
 
 def descendant_state(old: PlanStateSpace, new: PlanStateSpace,

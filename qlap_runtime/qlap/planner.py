@@ -346,9 +346,43 @@ class PlanGroups:
         returns the groups and the ``(key, groups)`` pair to keep for the next call."""
         key = cls.key_of(plans)
         if cached is not None and cached[0] == key:
-            return cached[1], cached
+            # Keep the new key: its objects are the plans' own, so the next comparison
+            # meets identical objects (a rebuilt plan's equal goal is a new Event).
+            return cached[1], (key, cached[1])
         groups = cls(plans)
         return groups, (key, groups)
+
+    def _by_group(self, magnitudes: frozenset[int]) -> tuple[np.ndarray, ...]:
+        """Per group its action's variable and value and whether the variable is one of
+        ``magnitudes``; per row its group and its plan's goal direction (cached)."""
+        cached = self.__dict__.get("_group_arrays")
+        if cached is not None and cached[0] == magnitudes:
+            return cached[1]
+        out = (np.array([k[0] for k in self.keys], dtype=np.int64),
+               np.array([k[1] for k in self.keys], dtype=np.int64),
+               np.array([k[0] in magnitudes for k in self.keys], dtype=bool),
+               np.array([g for g, group in enumerate(self.groups) for _ in group],
+                        dtype=np.int64),
+               np.array([pl.goal.direction for group in self.groups for pl in group],
+                        dtype=np.int64))
+        self._group_arrays = (magnitudes, out)
+        return out
+
+    def usable(self, q: np.ndarray, magnitudes: frozenset[int]) -> tuple[list[int], list[bool]]:
+        """The groups whose action is not achieved in ``q`` (v ≠ q) and that have a usable
+        plan there: its state known (:meth:`known`) and, for an action on one of the
+        ``magnitudes``, its goal direction the side q is reached from (1 from below, −1 from
+        above; §5.3). Returns those groups' indices in order and the per-row usability, the
+        tests of the agent's IAC scan done at once for all plans."""
+        row_ok = np.asarray(self.known(q), dtype=bool)
+        if not self.keys:
+            return [], []
+        var, val, is_mag, row_group, row_dir = self._by_group(magnitudes)
+        qv = np.asarray(q)[var]
+        side = np.where(qv < val, 1, -1)
+        row_ok &= ~is_mag[row_group] | (row_dir == side[row_group])
+        has = np.bincount(row_group[row_ok], minlength=len(self.keys)) > 0
+        return np.flatnonzero(has & (qv != val)).tolist(), row_ok.tolist()
 
     def known(self, q: np.ndarray) -> list[bool]:
         """Per row: the plan has a space and :meth:`~.mdp.PlanStateSpace.index_from_full` of

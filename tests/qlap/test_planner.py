@@ -224,3 +224,39 @@ def test_cached_cell_reliabilities_are_the_scalar_formula_after_every_change() -
         if rng.random() < 0.2:                              # a recount: new arrays
             dbn.cpt_s, dbn.cpt_f = dbn.cpt_s + 1.0, dbn.cpt_f.copy()
     assert plan.rel_state(-1) == plan.rel() and plan.rel_state(3) == plan.rel()
+
+
+def test_plan_groups_usable_agrees_with_the_scan_one_plan_at_a_time() -> None:
+    # usable() against the IAC scan's tests plan by plan: the action not achieved, the plan's
+    # state known, and for an action on a magnitude the plan's goal direction the side the
+    # value is reached from; a magnitude group (X, 1) with a plan from each side.
+    table = VariableTable.from_specs(SPECS)
+    sizes = [3, 3, 3]
+    plans: dict[int, Plan] = {}
+    specs = [(3, CHANGE, Event(U, 0), Event(XDOT, 2)), (1, CHANGE, Event(U, 2), Event(XDOT, 2)),
+             (2, CHANGE, Event(U, 2), Event(XDOT, 0)),
+             (4, "magnitude", Event(XDOT, 2), Event(X, 1, 1)),
+             (5, "magnitude", Event(XDOT, 0), Event(X, 1, -1))]
+    for pid, kind, ante, cons in specs:
+        dbn = DBN(pid, kind, ante, cons, (), 0, len(table), 200)
+        plan = Plan(pid, dbn, table, P, 0, len(table))
+        plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), fresh=True)
+        plans[pid] = plan
+    groups, _ = PlanGroups.for_plans(plans, None)
+    magnitudes = frozenset({X})
+    rng = np.random.default_rng(3)
+    for q in rng.integers(-1, 3, size=(300, 3)):
+        found, usable = groups.usable(q, magnitudes)
+        want_found = []
+        for g, (key, group, rows) in enumerate(zip(groups.keys, groups.groups, groups.rows,
+                                                  strict=True)):
+            ok = []
+            for pl, r in zip(group, rows, strict=True):
+                good = pl.space.index_from_full(q.tolist()) is not None
+                if key[0] in magnitudes:
+                    good &= pl.goal.direction == (1 if q[key[0]] < key[1] else -1)
+                assert usable[r] == good
+                ok.append(good)
+            if q[key[0]] != key[1] and any(ok):
+                want_found.append(g)
+        assert found == want_found
