@@ -540,19 +540,16 @@ class TransitionModel:
         space = self.space
         rel_a = _rel_actions(rel_action, self.actions)
         rel_r = _rel_states(rel_model, space, space.all_values())
-        from_model, from_action, wrong_cols, inapplicable = self._p1_columns()
-        # Every column is a copy of rel(r, s) or of its action's rel(a), as in build.
-        p1 = np.empty((space.n_states, len(self.actions)))
-        p1[:, from_model] = rel_r[:, None]
-        p1[:, from_action] = rel_a[from_action]
-        for j, wrong in wrong_cols:
-            p1[wrong, j] = 0.0
-        p1[inapplicable] = 0.0
+        source, pair_source = self._p1_sources()
+        # Every entry of p1 is a copy of rel(r, s), of its action's rel(a) or 0.0, as in
+        # build: gathered at once from the three.
+        values = np.concatenate((rel_r, rel_a, _ZERO))
+        p1 = values.take(source)
         p1.flags.writeable = False
         model = TransitionModel(space, self.actions, self.spec, self.next1, p1, self.next2,
                                 self.applicable, self.goal)
         object.__setattr__(model, "_p1_recipe", recipe)
-        object.__setattr__(model, "_p1_cols", self.__dict__["_p1_cols"])
+        object.__setattr__(model, "_p1_src", self.__dict__["_p1_src"])
         rewards = self.__dict__.get("_rewards")     # R does not depend on p1
         if rewards is not None:
             object.__setattr__(model, "_rewards", rewards)
@@ -560,22 +557,29 @@ class TransitionModel:
         if pairs is not None:
             # The applicable pairs, rewards and next states do not depend on p1 either.
             key, (flat, _, _, r1, r2, n1, n2) = pairs
-            a1 = p1.ravel()[flat]
+            a1 = values.take(pair_source)
             object.__setattr__(model, "_applicable_pairs",
                                (key, (flat, a1, 1.0 - a1, r1, r2, n1, n2)))
         return model
 
-    def _p1_columns(self) -> tuple[np.ndarray, np.ndarray, tuple, np.ndarray]:
-        """The recipe of ``p1`` by columns (cached): those from rel(r, s), those from rel(a),
-        the (column, wrong-side rows) zeroed, and the mask of inapplicable pairs."""
-        cached = self.__dict__.get("_p1_cols")
+    def _p1_sources(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where each entry of ``p1`` comes from (cached), as indices into rel(r, s) (one per
+        state), then rel(a) (one per action), then a 0.0: per pair, and per applicable pair
+        (in the order of :func:`_applicable_pairs`). From the recipe :meth:`build` records:
+        columns from rel(r, s) or from rel(a), wrong-side rows zeroed, inapplicable pairs 0."""
+        cached = self.__dict__.get("_p1_src")
         if cached is None:
             recipe = self.__dict__["_p1_recipe"]
-            cached = (np.array([j for j, (m, _) in enumerate(recipe) if m], dtype=np.int64),
-                      np.array([j for j, (m, _) in enumerate(recipe) if not m], dtype=np.int64),
-                      tuple((j, w) for j, (_, w) in enumerate(recipe) if w is not None),
-                      ~self.applicable)
-            object.__setattr__(self, "_p1_cols", cached)
+            n_s, n_a = self.applicable.shape
+            source = np.empty((n_s, n_a), dtype=np.int64)
+            states = np.arange(n_s, dtype=np.int64)
+            for j, (from_model, wrong) in enumerate(recipe):
+                source[:, j] = states if from_model else n_s + j
+                if wrong is not None:
+                    source[wrong, j] = n_s + n_a
+            source[~self.applicable] = n_s + n_a
+            cached = (source, source.ravel()[np.flatnonzero(self.applicable)])
+            object.__setattr__(self, "_p1_src", cached)
         return cached
 
     def rewards(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
@@ -604,6 +608,10 @@ class TransitionModel:
     def initial_q(self, fill: float = 0.0) -> np.ndarray:
         """A Q-table of ``fill`` on applicable pairs and the sentinel elsewhere."""
         return np.where(self.applicable, float(fill), NOT_APPLICABLE)
+
+
+_ZERO = np.zeros(1)
+"""The 0.0 of :meth:`TransitionModel._p1_sources`."""
 
 
 def _rel_actions(rel: RelAction, actions: Sequence[MDPAction]) -> np.ndarray:

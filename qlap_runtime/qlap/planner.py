@@ -119,7 +119,9 @@ class Plan:
         changed (state and action indices of the old space are void).
         """
         g = dbn.consequent                       # landmarks may have renumbered it
-        self.goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
+        goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
+        if goal != self.goal:
+            self.goal = goal                     # equal: kept, as the space below
         self.action = (g.var, g.value)
         ante = dbn.antecedent
         spec = PlanSpec(goal=self.goal, antecedent=ante, magnitude_plan=self.kind != CHANGE,
@@ -129,6 +131,11 @@ class Plan:
         if self.space is not None and space == self.space:
             space = self.space                   # equal: keep the one with its cached arrays
         actions = build_actions(space, spec)
+        # Equal ones are kept (as the space): the model cache then compares identical objects.
+        if spec == self.spec:
+            spec = self.spec
+        if actions == self.actions:
+            actions = self.actions
         if space.n_states * len(actions) > self.params.max_plan_entries:
             raise PlanTooLarge(f"plan for DBN {self.dbn_id}: {space.n_states} states × "
                                f"{len(actions)} actions > {self.params.max_plan_entries}")
