@@ -564,20 +564,20 @@ class ModelLearner:
             if dbn.kind != CHANGE or dbn.act_n < p.min_data_points:
                 continue
             X, ok = dbn.stored()
+            Q = np.full(X.shape, -1, dtype=np.int64)              # only the columns used
+            Q[:, cols] = self.perception.quantize_columns(X, cols)
+            cq = None
+            if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
+                cq = self.perception.quantize_columns(X, dbn.context)[:, 0]
             # Blocks whose gain bound cannot pass eq. 4.17 are skipped: best_cut there could
             # only give a cut that is_candidate rejects.
-            bound, labels = self._gain_bounds(dbn, X, ok, cols, n_values)
+            bound, labels = cut_gain_bounds(X[:, cols], ok, Q[:, cols], n_values, cq)
             with np.errstate(invalid="ignore"):
                 passing = (bound > p.theta_ig - _TOL) & \
                     (bound * prob[:, :, None] > p.theta_ig / 2 - _TOL)
             passing[:, 1::2, :] = False
             if not passing.any():
                 continue
-            Q = np.full(X.shape, -1, dtype=np.int64)              # only the columns used
-            Q[:, cols] = self.perception.quantize_columns(X, cols)
-            cq = None
-            if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
-                cq = self.perception.quantize_columns(X, dbn.context)[:, 0]
             r: ModelStats | None = None
             best: tuple | None = None
             for i, q, gi in np.argwhere(passing).tolist():
@@ -625,29 +625,6 @@ class ModelLearner:
                 continue                        # D.2 item 3; or too close to one just added
             used.add((var, q))
             self._do(("add_landmark", var, lb, ub, "dbn", step, dbn_id, ante, ctx))
-
-    def _gain_bounds(self, dbn: DBN, X: np.ndarray, ok: np.ndarray, cols: np.ndarray,
-                     n_values: int) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`~.landmarks.cut_gain_bounds` of a DBN's stored activations ``X``/``ok`` on
-        the variables ``cols`` (grouped by its context's values when it has one variable,
-        §4.4.1 footnote 2), kept on the DBN with its inputs: the stored activations (changed
-        only by record(), which counts ``dbn.total``), the columns, ``n_values``, the context
-        and the quantity spaces of these variables. A DBN with no new activation and no new
-        landmark on them since the last landmark batch gets the same bounds (a pure cache,
-        never saved)."""
-        ctx = dbn.context if len(dbn.context) == 1 else ()
-        key = (dbn.total, tuple(cols.tolist()), n_values, ctx,
-               self.perception.landmark_signature((*cols.tolist(), *ctx)))
-        hit = getattr(dbn, "_gain_bounds", None)
-        if hit is not None and hit[0] == key:
-            return hit[1]
-        Q = self.perception.quantize_columns(X, cols)
-        cq = self.perception.quantize_columns(X, ctx)[:, 0] if ctx else None
-        out = cut_gain_bounds(X[:, cols], ok, Q, n_values, cq)
-        for arr in out:
-            arr.flags.writeable = False                 # shared with later batches
-        dbn._gain_bounds = (key, out)  # type: ignore[attr-defined]
-        return out
 
     def _fit_resolution(self, var: int, lb: float, ub: float) -> tuple[float, float] | None:
         """A candidate landmark at the variable's resolution (docs/decisions.md): widened about

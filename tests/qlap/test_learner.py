@@ -183,39 +183,3 @@ def test_algorithm_4_puts_no_motor_in_a_context():
     u = learner.perception.spaces[learner.table.index("u")].landmarks
     assert any(0.25 < m.lb <= m.ub < 0.35 for m in u), u    # the threshold, via ⟨u→q ⇒ ẋ⟩
 
-
-def test_gain_bounds_kept_while_their_inputs_hold_and_equal_to_the_direct_computation():
-    from qlap_runtime.qlap.landmarks import cut_gain_bounds
-    from qlap_runtime.qlap.quantity import Landmark
-
-    learner = learn(6_000)
-    per = learner.perception
-    cols = np.array([v.index for v in learner.table.of_kind(Kind.MOTOR, Kind.MAGNITUDE)])
-    dbn = max(learner.dbns.values(), key=lambda d: d.act_n)
-
-    def direct() -> tuple[np.ndarray, np.ndarray]:
-        X, ok = dbn.stored()
-        cq = per.quantize_columns(X, dbn.context)[:, 0] if len(dbn.context) == 1 else None
-        return cut_gain_bounds(X[:, cols], ok, per.quantize_columns(X, cols), 9, cq)
-
-    def cached() -> tuple[np.ndarray, np.ndarray]:
-        X, ok = dbn.stored()
-        return learner._gain_bounds(dbn, X, ok, cols, 9)
-
-    def same(a, b) -> bool:
-        return all(x.tobytes() == y.tobytes() and x.shape == y.shape
-                   for x, y in zip(a, b, strict=True))
-
-    first = cached()
-    assert same(first, direct())
-    assert cached() is first                             # the same inputs: kept
-    X, ok = dbn.stored()
-    dbn.record(X[0], not ok[0], -1)                      # a new activation: recomputed
-    second = cached()
-    assert second is not first and same(second, direct())
-    x = learner.table.index("x")
-    lo, hi = np.nanmin(X[:, x]), np.nanmax(X[:, x])
-    mid = lo + 0.37 * (hi - lo)
-    per.add_landmark(x, Landmark(mid, mid + 1e-3))       # a landmark on a column: recomputed
-    third = cached()
-    assert third is not second and same(third, direct())
