@@ -95,3 +95,23 @@ def test_cut_gain_bounds_bound_every_block_best_cut():
                         assert cut.gain <= bound[j, q, gi] + 1e-12
                     if m.sum() < 2:
                         assert bound[j, q, gi] == -np.inf
+
+
+def test_cut_gain_bounds_of_some_columns_are_those_columns_of_all():
+    # The learner bounds only the columns a DBN may take a landmark on (App. D.2): each
+    # column's bounds do not depend on the other columns, bit for bit.
+    from qlap_runtime.qlap.landmarks import cut_gain_bounds
+
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        n, V = int(rng.integers(2, 200)), int(rng.integers(2, 8))
+        X = np.round(rng.normal(size=(n, V)), int(rng.integers(0, 3)))
+        X[rng.random(X.shape) < 0.05] = np.nan
+        ok = rng.random(n) < rng.random()
+        Q = np.where(np.isnan(X), -1, (X > -0.5).astype(int) * 2 + (X > 0.5) * 2)
+        groups = rng.integers(-1, 3, size=n) if rng.random() < 0.5 else None
+        full, labels = cut_gain_bounds(X, ok, Q, 5, groups)
+        some = np.flatnonzero(rng.random(V) < 0.5)
+        part, part_labels = cut_gain_bounds(X[:, some], ok, Q[:, some], 5, groups)
+        assert part.tobytes() == full[some].tobytes()
+        assert part_labels.tobytes() == labels.tobytes()
