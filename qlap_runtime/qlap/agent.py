@@ -352,6 +352,7 @@ class Agent:
 
     def _rebuild(self, plan: Plan, fresh: bool = False,
                  value_maps: dict[int, np.ndarray] | None = None) -> bool:
+        self._plans_changed()
         dbn = self.learner.dbns[plan.dbn_id]
         sizes = self._sizes()
         return plan.build(dbn, sizes, self._rel_action,
@@ -497,6 +498,7 @@ class Agent:
 
     def _remove_plan(self, pid: int) -> None:
         plan = self.plans.pop(pid)
+        self._plans_changed()
         dbn = self.learner.dbns.get(plan.dbn_id)
         if dbn is not None:
             dbn.is_plan = False
@@ -682,10 +684,20 @@ class Agent:
         return cached
 
     def _plan_groups(self) -> PlanGroups:
-        """The plans by action (:class:`~.planner.PlanGroups`), kept while they still hold."""
-        groups, self._groups_cache = PlanGroups.for_plans(
-            self.plans, self.__dict__.get("_groups_cache"))
+        """The plans by action (:class:`~.planner.PlanGroups`), kept until a plan is added,
+        removed or rebuilt (:meth:`_rebuild`, :meth:`_remove_plan`: the only changes of the
+        plans' actions, goals and spaces), or ``self.plans`` is another dict or size."""
+        stamp = (self.__dict__.get("_plans_version", 0), id(self.plans), len(self.plans))
+        cached = self.__dict__.get("_groups_cache")
+        if cached is not None and cached[0] == stamp:
+            return cached[1]
+        groups = PlanGroups(self.plans)
+        self._groups_cache = (stamp, groups)
         return groups
+
+    def _plans_changed(self) -> None:
+        """A plan was added, removed or rebuilt: the plan groups are void."""
+        self._plans_version = self.__dict__.get("_plans_version", 0) + 1
 
     # ------------------------------------------------------------------------------------------
     # the call list (Algorithms 6 and 7)
@@ -783,7 +795,7 @@ class Agent:
             self.motor[v.name] = value
             self.call_list.append(Frame(key, t, is_motor=True, practised=practised))
             return RUN
-        plans = self._usable_plans(key, p, [pl for pl in self.plans.values() if pl.action == key])
+        plans = self._usable_plans(key, p, self._plan_groups().plans_of(key))
         idx = self._pick_plan(plans, p) if plans else None
         if idx is None:
             if self.learning:

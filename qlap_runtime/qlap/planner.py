@@ -317,6 +317,7 @@ class PlanGroups:
         """The actions with plans, in order."""
         self.groups = [sorted(by_action[k], key=lambda pl: pl.id) for k in self.keys]
         """The plans of each action, by id."""
+        self._index = {k: i for i, k in enumerate(self.keys)}
         flat = [pl for group in self.groups for pl in group]
         self.rows: list[list[int]] = []
         """Row of each group's plans in :meth:`known`'s answer."""
@@ -340,6 +341,11 @@ class PlanGroups:
             self._sizes[r, :n] = pl.space.sizes
             self._max_var[r] = max(pl.space.vars, default=-1)
             self._has_space[r] = True
+
+    def plans_of(self, action: tuple[int, int]) -> list[Plan]:
+        """The plans of ``action`` by id (none: an empty list)."""
+        i = self._index.get(action)
+        return [] if i is None else list(self.groups[i])
 
     @staticmethod
     def key_of(plans: Mapping[int, Plan]) -> tuple:

@@ -260,3 +260,18 @@ def test_plan_groups_usable_agrees_with_the_scan_one_plan_at_a_time() -> None:
             if q[key[0]] != key[1] and any(ok):
                 want_found.append(g)
         assert found == want_found
+
+
+def test_plan_groups_plans_of_is_the_filter_of_all_plans() -> None:
+    table = VariableTable.from_specs(SPECS)
+    sizes = [3, 3, 3]
+    plans: dict[int, Plan] = {}
+    for pid, ante, cons in [(3, Event(U, 0), Event(XDOT, 2)), (1, Event(U, 2), Event(XDOT, 2)),
+                            (2, Event(U, 2), Event(XDOT, 0))]:
+        dbn = DBN(pid, CHANGE, ante, cons, (), 0, len(table), 200)
+        plans[pid] = Plan(pid, dbn, table, P, 0, len(table))
+        plans[pid].build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), fresh=True)
+    groups = PlanGroups(plans)
+    for key in [(XDOT, 0), (XDOT, 2), (XDOT, 1), (X, 0)]:
+        want = sorted((pl for pl in plans.values() if pl.action == key), key=lambda pl: pl.id)
+        assert groups.plans_of(key) == want
