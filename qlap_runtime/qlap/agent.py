@@ -755,14 +755,7 @@ class Agent:
     def _state_cell(self, ctx: tuple[int, ...], q: np.ndarray | list[int]) -> int:
         """Mixed-radix cell of the current qualitative values of ``ctx`` (−1 if unavailable);
         ``q`` by variable, an array or (faster) its ``tolist()``."""
-        cell = 0
-        sizes = self.learner.perception.events.sizes
-        for v in ctx:
-            qv = int(q[v])
-            if qv < 0:
-                return -1
-            cell = cell * sizes[v] + qv
-        return cell
+        return _cell_of(ctx, q, self.learner.perception.events.sizes)
 
     def _pick_plan(self, plans: list[Plan], p: Percept,
                    q_list: list[int] | None = None) -> int | None:
@@ -772,14 +765,17 @@ class Agent:
         in_list = {f.key for f in self.call_list}
         w, excluded = [], []
         prior = self.params.prior
+        dbns = self.learner.dbns
+        sizes = self.learner.perception.events.sizes
         for plan in plans:
-            dbn = self.learner.dbns[plan.dbn_id]
-            excluded.append((dbn.antecedent.var, dbn.antecedent.value) in in_list)
-            cell = self._state_cell(dbn.context, q)
+            dbn = dbns[plan.dbn_id]
+            ante = dbn.antecedent
+            excluded.append((ante.var, ante.value) in in_list)
+            cell = _cell_of(dbn.context, q, sizes)
             rels = dbn.cell_reliabilities(prior)
             rel_rs = rels[cell] if 0 <= cell < len(rels) else \
                 (0.0 + prior) / (0.0 + 0.0 + 2 * prior)    # a cell with no counts
-            w.append(plan_weight(rel_rs, plan.rel_state(self._state_cell(plan.context_o, q))))
+            w.append(plan_weight(rel_rs, plan.rel_state(_cell_of(plan.context_o, q, sizes))))
         return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
 
     def _call(self, key: ActionKey, p: Percept, practised: bool = False) -> str:
@@ -1010,3 +1006,14 @@ class Agent:
         k["self"] = sorted(self.table[v].name for v in self.self_vars)
         return k
 
+
+def _cell_of(ctx: tuple[int, ...], q: np.ndarray | list[int], sizes) -> int:
+    """Mixed-radix cell of the values ``q[v]`` of the variables ``ctx`` with radices
+    ``sizes[v]`` (−1 if one is unavailable): a DBN's or plan's CPT cell of a state."""
+    cell = 0
+    for v in ctx:
+        qv = int(q[v])
+        if qv < 0:
+            return -1
+        cell = cell * sizes[v] + qv
+    return cell
