@@ -33,9 +33,9 @@ from .actions import (
 from .babble import Babbler
 from .curiosity import (
     IACChoice,
-    action_weight,
     choose_action,
     choose_plan,
+    fallback_weight,
     iac_weight,
     plan_weight,
 )
@@ -667,10 +667,11 @@ class Agent:
             if w is None:                 # fewer than 50 calls: eq. 6.2 with the chosen plan
                 plans = [pl for pl, r in zip(groups.groups[g], groups.rows[g], strict=True)
                          if usable[r]]
-                idx = self._pick_plan(plans, p, q_list)
-                rel_os = None if idx is None else \
-                    plans[idx].rel_state(self._state_cell(plans[idx].context_o, q_list))
-                w = action_weight(stats, rel_os, self.params)
+                w_plans, excluded, rel_os = self._plan_weights(plans, q_list)
+                idx = choose_plan(w_plans, excluded, self.rng, self.params.plan_epsilon)
+                # action_weight in the eq. 6.2 regime (iac_weight is None here)
+                w = 0.0 if idx is None else \
+                    fallback_weight(stats.rel(self.params.prior), rel_os[idx])
             out.append(key)
             weights.append(w)
         return out, weights
@@ -761,9 +762,15 @@ class Agent:
                    q_list: list[int] | None = None) -> int | None:
         """§6.1.2: ε-greedy on w = rel(r, s)·rel(o, s); plans whose antecedent action is in
         the call list are excluded. ``q_list`` is ``p.q.tolist()`` when the caller has it."""
-        q = p.q.tolist() if q_list is None else q_list
+        w, excluded, _ = self._plan_weights(plans, p.q.tolist() if q_list is None else q_list)
+        return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
+
+    def _plan_weights(self, plans: list[Plan], q: list[int]
+                      ) -> tuple[list[float], list[bool], list[float]]:
+        """Per plan (§6.1.2): w = rel(r, s)·rel(o, s) (eq. 6.3), whether its antecedent action
+        is in the call list, and rel(o, s), in the state ``q`` (``p.q.tolist()``)."""
         in_list = {f.key for f in self.call_list}
-        w, excluded = [], []
+        w, excluded, rel_os = [], [], []
         prior = self.params.prior
         dbns = self.learner.dbns
         sizes = self.learner.perception.events.sizes
@@ -775,8 +782,9 @@ class Agent:
             rels = dbn.cell_reliabilities(prior)
             rel_rs = rels[cell] if 0 <= cell < len(rels) else \
                 (0.0 + prior) / (0.0 + 0.0 + 2 * prior)    # a cell with no counts
-            w.append(plan_weight(rel_rs, plan.rel_state(_cell_of(plan.context_o, q, sizes))))
-        return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
+            rel_os.append(plan.rel_state(_cell_of(plan.context_o, q, sizes)))
+            w.append(plan_weight(rel_rs, rel_os[-1]))
+        return w, excluded, rel_os
 
     def _call(self, key: ActionKey, p: Percept, practised: bool = False) -> str:
         """Algorithm 6: push a(v, q) on the call list; RUN or FAIL (the frame is then gone)."""
