@@ -21,6 +21,7 @@ Conventions
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -853,14 +854,17 @@ def greedy_action(q: np.ndarray, s: int, rng: np.random.Generator,
     With probability ε a uniformly random applicable action, else a maximiser of Q(s, ·)
     (ties broken uniformly at random). Draws from ``rng`` only.
     """
-    row = np.asarray(q[s], dtype=float)
-    ok = np.flatnonzero(np.isfinite(row))
-    if ok.size == 0:
+    # Plain Python on the row's floats: a plan has a few actions, and this runs at every
+    # sub-action choice, where numpy's per-call overhead dominated (the same comparisons).
+    row = np.asarray(q[s], dtype=float).tolist()
+    ok = [j for j, x in enumerate(row) if math.isfinite(x)]
+    if not ok:
         return None
     if rng.random() < epsilon:
-        return int(ok[rng.integers(ok.size)])
-    best = ok[row[ok] == row[ok].max()]
-    return int(best[0] if best.size == 1 else best[rng.integers(best.size)])
+        return ok[int(rng.integers(len(ok)))]
+    top = max(row[j] for j in ok)
+    best = [j for j in ok if row[j] == top]
+    return best[0] if len(best) == 1 else best[int(rng.integers(len(best)))]
 
 
 # ---------------------------------------------------------------------------------------------

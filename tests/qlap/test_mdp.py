@@ -686,3 +686,29 @@ def test_grow_q_merging_dropped_variables_matches_one_combination_at_a_time() ->
         sub[ok] = acc[ok] / cnt[ok]
         want[:, known] = sub
         assert out.tobytes() == want.tobytes()
+
+
+def _greedy_action_numpy(q, s, rng, epsilon):
+    """greedy_action as first written, with numpy (the reference)."""
+    row = np.asarray(q[s], dtype=float)
+    ok = np.flatnonzero(np.isfinite(row))
+    if ok.size == 0:
+        return None
+    if rng.random() < epsilon:
+        return int(ok[rng.integers(ok.size)])
+    best = ok[row[ok] == row[ok].max()]
+    return int(best[0] if best.size == 1 else best[rng.integers(best.size)])
+
+
+def test_greedy_action_chooses_and_draws_as_the_numpy_version() -> None:
+    # Ties, −inf (not applicable), rows with nothing applicable, ε from 0 to 1: the same
+    # choices and the same draws (the generators end in the same state).
+    data = np.random.default_rng(2)
+    q = data.integers(-2, 3, size=(300, 6)).astype(float)
+    q[data.random(q.shape) < 0.3] = NOT_APPLICABLE
+    q[:5] = NOT_APPLICABLE
+    for eps in (0.0, 0.05, 0.5, 1.0):
+        a, b = np.random.default_rng(9), np.random.default_rng(9)
+        for s in range(q.shape[0]):
+            assert greedy_action(q, s, a, eps) == _greedy_action_numpy(q, s, b, eps)
+        assert a.random() == b.random()
