@@ -144,6 +144,13 @@ class Plan:
         old_space, old_actions, old_q = self.space, self.actions, self.q
         self.spec, self.space, self.actions = spec, space, actions
         self.usable = usable
+        cached = getattr(self, "_model_cache", None)
+        if same and self.model is not None and cached is not None \
+                and cached[2] is self.model and cached[0] == self._structure():
+            # Only rel(a) and rel(r, s) may have changed, and the model's probabilities are
+            # read by Dyna and value iteration alone, which get the model anew with the
+            # reliabilities of their time (refresh; a structure change): left until then.
+            return False
         self.model = self._model(rel_action, rel_model)
         if not same:
             model, params = self.model, self.params
@@ -160,14 +167,13 @@ class Plan:
         assert self.space is not None
         assert self.spec is not None
         space = self.space
-        usable = tuple(a.var < 0 or self.usable is None or bool(self.usable(a.var, a.value))
-                       for a in self.actions)
+        structure = self._structure()
+        usable = structure[3]
         rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
         rel_r = rel_model(space)
         # The model is a function of these alone (the regress mask below follows from the
         # space, actions, spec and usability): reuse it when none changed, and when only the
         # reliabilities did (Dyna refreshes) recompute just its probabilities.
-        structure = (space, tuple(self.actions), self.spec, usable)
         rels = (tuple(rel_a), np.asarray(rel_r, dtype=float).tobytes())
         cached = getattr(self, "_model_cache", None)
         if cached is not None and cached[0] == structure:
@@ -195,6 +201,13 @@ class Plan:
         model = TransitionModel.build(space, self.actions, self.spec, rel_a, rel_r, regress)
         self._model_cache = (structure, rels, model)
         return model
+
+    def _structure(self) -> tuple:
+        """What the model is, besides rel(a) and rel(r, s), a function of: the space, the
+        actions, the spec and each action's usability."""
+        usable = tuple(a.var < 0 or self.usable is None or bool(self.usable(a.var, a.value))
+                       for a in self.actions)
+        return (self.space, tuple(self.actions), self.spec, usable)
 
     def refresh(self, rel_action: RelAction, rel_model, dyna: bool) -> None:
         """New statistics: rebuild T_i and, unless ablated, one Dyna sweep (§5.2.2, eq. 5.10)."""

@@ -275,3 +275,29 @@ def test_plan_groups_plans_of_is_the_filter_of_all_plans() -> None:
     for key in [(XDOT, 0), (XDOT, 2), (XDOT, 1), (X, 0)]:
         want = sorted((pl for pl in plans.values() if pl.action == key), key=lambda pl: pl.id)
         assert groups.plans_of(key) == want
+
+
+def test_a_rebuild_of_the_same_structure_leaves_the_model_to_the_next_refresh() -> None:
+    # Rebuilt with new reliabilities and the same structure, a plan keeps its model (only
+    # Dyna and value iteration read p1); its next refresh gives the model and Dyna sweep of a
+    # plan whose rebuild computed the model.
+    lazy, dbn, _ = make_plan()
+    eager, _, _ = make_plan()
+    sizes = [3, 1, 3]
+    rng = np.random.default_rng(6)
+    for _ in range(4):
+        dbn.record(np.zeros(3), bool(rng.random() < 0.7), 0)
+        rel_a = float(rng.uniform(0.1, 0.9))
+
+        def rel(var: int, value: int, r: float = rel_a) -> float:
+            return r
+
+        before = lazy.model
+        assert not lazy.build(dbn, sizes, rel, dbn_rel_state(dbn, sizes, 1.0))
+        assert lazy.model is before
+        eager._model_cache = None                       # the rebuild computes the model
+        assert not eager.build(dbn, sizes, rel, dbn_rel_state(dbn, sizes, 1.0))
+        for plan in (lazy, eager):
+            plan.refresh(rel, dbn_rel_state(dbn, sizes, 1.0), dyna=True)
+        assert lazy.model.p1.tobytes() == eager.model.p1.tobytes()
+        assert lazy.q.tobytes() == eager.q.tobytes()
