@@ -33,9 +33,9 @@ from .actions import (
 from .babble import Babbler
 from .curiosity import (
     IACChoice,
-    action_weight,
     choose_action,
     choose_plan,
+    fallback_weight,
     iac_weight,
     plan_weight,
 )
@@ -352,6 +352,7 @@ class Agent:
 
     def _rebuild(self, plan: Plan, fresh: bool = False,
                  value_maps: dict[int, np.ndarray] | None = None) -> bool:
+        self._plans_changed()
         dbn = self.learner.dbns[plan.dbn_id]
         sizes = self._sizes()
         return plan.build(dbn, sizes, self._rel_action,
@@ -371,12 +372,14 @@ class Agent:
         sizes = self._sizes()
         perception = self.learner.perception
         quantize = perception.quantize_columns
-        version = perception.landmarks_version
         for pid in sorted(self.plans):
             plan = self.plans[pid]
             dbn = self.learner.dbns[plan.dbn_id]
-            plan.recount(quantize, sizes, version)
             cands = [v for v in self.learner.context_candidates(dbn) if v not in dbn.context]
+            # The quantity spaces the second-order DBN's counts and its C_o search read: those
+            # of the candidates and of C_o (landmarks of other variables leave them unchanged).
+            version = perception.landmark_signature(sorted({*cands, *plan.context_o}))
+            plan.recount(quantize, sizes, version)
             before = plan.context_o
             if plan.update_context(cands, quantize, sizes, version) and \
                     plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
@@ -495,6 +498,7 @@ class Agent:
 
     def _remove_plan(self, pid: int) -> None:
         plan = self.plans.pop(pid)
+        self._plans_changed()
         dbn = self.learner.dbns.get(plan.dbn_id)
         if dbn is not None:
             dbn.is_plan = False
@@ -653,30 +657,48 @@ class Agent:
             return out, weights
         groups = self._plan_groups()
         q_list = p.q.tolist()
-        known = groups.known(p.q)
-        for key, plans, rows in zip(groups.keys, groups.groups, groups.rows, strict=True):
-            if q_list[key[0]] == key[1]:           # achieved now (:meth:`_achieved`)
-                continue
-            plans = self._from_side(key, [pl for pl, r in zip(plans, rows, strict=True)
-                                          if known[r]], q_list)
-            if not plans:
-                continue
+        # Actions not achieved now (:meth:`_achieved`) with a usable plan (known state, from
+        # the current side: :meth:`_usable_plans`), tested for all plans at once.
+        found, usable = groups.usable(p.q, self._magnitude_vars())
+        for g in found:
+            key = groups.keys[g]
             stats = self.actions[key]
             w = self._iac_weight(stats)
             if w is None:                 # fewer than 50 calls: eq. 6.2 with the chosen plan
-                idx = self._pick_plan(plans, p, q_list)
-                rel_os = None if idx is None else \
-                    plans[idx].rel_state(self._state_cell(plans[idx].context_o, q_list))
-                w = action_weight(stats, rel_os, self.params)
+                plans = [pl for pl, r in zip(groups.groups[g], groups.rows[g], strict=True)
+                         if usable[r]]
+                w_plans, excluded, rel_os = self._plan_weights(plans, q_list)
+                idx = choose_plan(w_plans, excluded, self.rng, self.params.plan_epsilon)
+                # action_weight in the eq. 6.2 regime (iac_weight is None here)
+                w = 0.0 if idx is None else \
+                    fallback_weight(stats.rel(self.params.prior), rel_os[idx])
             out.append(key)
             weights.append(w)
         return out, weights
 
+    def _magnitude_vars(self) -> frozenset[int]:
+        """The magnitude variables (their actions have a plan from each side, §5.3)."""
+        cached = self.__dict__.get("_magnitudes")
+        if cached is None:
+            cached = self._magnitudes = frozenset(
+                v.index for v in self.table if v.kind is Kind.MAGNITUDE)
+        return cached
+
     def _plan_groups(self) -> PlanGroups:
-        """The plans by action (:class:`~.planner.PlanGroups`), kept while they still hold."""
-        groups, self._groups_cache = PlanGroups.for_plans(
-            self.plans, self.__dict__.get("_groups_cache"))
+        """The plans by action (:class:`~.planner.PlanGroups`), kept until a plan is added,
+        removed or rebuilt (:meth:`_rebuild`, :meth:`_remove_plan`: the only changes of the
+        plans' actions, goals and spaces), or ``self.plans`` is another dict or size."""
+        stamp = (self.__dict__.get("_plans_version", 0), id(self.plans), len(self.plans))
+        cached = self.__dict__.get("_groups_cache")
+        if cached is not None and cached[0] == stamp:
+            return cached[1]
+        groups = PlanGroups(self.plans)
+        self._groups_cache = (stamp, groups)
         return groups
+
+    def _plans_changed(self) -> None:
+        """A plan was added, removed or rebuilt: the plan groups are void."""
+        self._plans_version = self.__dict__.get("_plans_version", 0) + 1
 
     # ------------------------------------------------------------------------------------------
     # the call list (Algorithms 6 and 7)
@@ -734,32 +756,35 @@ class Agent:
     def _state_cell(self, ctx: tuple[int, ...], q: np.ndarray | list[int]) -> int:
         """Mixed-radix cell of the current qualitative values of ``ctx`` (−1 if unavailable);
         ``q`` by variable, an array or (faster) its ``tolist()``."""
-        cell = 0
-        sizes = self.learner.perception.events.sizes
-        for v in ctx:
-            qv = int(q[v])
-            if qv < 0:
-                return -1
-            cell = cell * sizes[v] + qv
-        return cell
+        return _cell_of(ctx, q, self.learner.perception.events.sizes)
 
     def _pick_plan(self, plans: list[Plan], p: Percept,
                    q_list: list[int] | None = None) -> int | None:
         """§6.1.2: ε-greedy on w = rel(r, s)·rel(o, s); plans whose antecedent action is in
         the call list are excluded. ``q_list`` is ``p.q.tolist()`` when the caller has it."""
-        q = p.q.tolist() if q_list is None else q_list
+        w, excluded, _ = self._plan_weights(plans, p.q.tolist() if q_list is None else q_list)
+        return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
+
+    def _plan_weights(self, plans: list[Plan], q: list[int]
+                      ) -> tuple[list[float], list[bool], list[float]]:
+        """Per plan (§6.1.2): w = rel(r, s)·rel(o, s) (eq. 6.3), whether its antecedent action
+        is in the call list, and rel(o, s), in the state ``q`` (``p.q.tolist()``)."""
         in_list = {f.key for f in self.call_list}
-        w, excluded = [], []
+        w, excluded, rel_os = [], [], []
         prior = self.params.prior
+        dbns = self.learner.dbns
+        sizes = self.learner.perception.events.sizes
         for plan in plans:
-            dbn = self.learner.dbns[plan.dbn_id]
-            excluded.append((dbn.antecedent.var, dbn.antecedent.value) in in_list)
-            cell = self._state_cell(dbn.context, q)
+            dbn = dbns[plan.dbn_id]
+            ante = dbn.antecedent
+            excluded.append((ante.var, ante.value) in in_list)
+            cell = _cell_of(dbn.context, q, sizes)
             rels = dbn.cell_reliabilities(prior)
             rel_rs = rels[cell] if 0 <= cell < len(rels) else \
                 (0.0 + prior) / (0.0 + 0.0 + 2 * prior)    # a cell with no counts
-            w.append(plan_weight(rel_rs, plan.rel_state(self._state_cell(plan.context_o, q))))
-        return choose_plan(w, excluded, self.rng, self.params.plan_epsilon)
+            rel_os.append(plan.rel_state(_cell_of(plan.context_o, q, sizes)))
+            w.append(plan_weight(rel_rs, rel_os[-1]))
+        return w, excluded, rel_os
 
     def _call(self, key: ActionKey, p: Percept, practised: bool = False) -> str:
         """Algorithm 6: push a(v, q) on the call list; RUN or FAIL (the frame is then gone)."""
@@ -774,7 +799,7 @@ class Agent:
             self.motor[v.name] = value
             self.call_list.append(Frame(key, t, is_motor=True, practised=practised))
             return RUN
-        plans = self._usable_plans(key, p, [pl for pl in self.plans.values() if pl.action == key])
+        plans = self._usable_plans(key, p, self._plan_groups().plans_of(key))
         idx = self._pick_plan(plans, p) if plans else None
         if idx is None:
             if self.learning:
@@ -1014,3 +1039,15 @@ class Agent:
     def last_percept(self) -> Percept | None:
         """The percept of the latest step (:meth:`decide`), None before the first."""
         return self._last_percept
+
+
+def _cell_of(ctx: tuple[int, ...], q: np.ndarray | list[int], sizes) -> int:
+    """Mixed-radix cell of the values ``q[v]`` of the variables ``ctx`` with radices
+    ``sizes[v]`` (−1 if one is unavailable): a DBN's or plan's CPT cell of a state."""
+    cell = 0
+    for v in ctx:
+        qv = int(q[v])
+        if qv < 0:
+            return -1
+        cell = cell * sizes[v] + qv
+    return cell

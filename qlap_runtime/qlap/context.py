@@ -145,27 +145,14 @@ class StoredActivations:
                by_entropy: bool) -> tuple[int, ModelStats]:
         p = self.params
         Q, sizes = self.Q, self.sizes
-        n, m = len(self.ok), len(ctx)
+        m = len(ctx)
         opts = np.asarray(options, dtype=np.int64)
-        ctx_arr = np.asarray(ctx, dtype=np.int64)
-        # Mixed-radix cell of sorted((*ctx, v)) = (lo·|v| + q_v)·P_hi + hi, where lo/hi are the
-        # cells of the context variables below/above v.
-        lo = np.zeros((m + 1, n), dtype=np.int64)
-        hi = np.zeros((m + 1, n), dtype=np.int64)
-        phi = np.ones(m + 1, dtype=np.int64)
-        bad = np.zeros(n, dtype=bool)
-        for i, c in enumerate(ctx):
-            lo[i + 1] = lo[i] * sizes[c] + np.maximum(Q[:, c], 0)
-            bad |= Q[:, c] < 0
-        for i in range(m - 1, -1, -1):
-            hi[i] = np.maximum(Q[:, ctx[i]], 0) * phi[i + 1] + hi[i + 1]
-            phi[i] = phi[i + 1] * sizes[ctx[i]]
-        kv = np.searchsorted(ctx_arr, opts) if m else np.zeros(len(opts), dtype=np.int64)
         Qo = Q[:, opts]
         so = sizes[opts]
-        cells = (lo[kv].T * so + np.maximum(Qo, 0)) * phi[kv] + hi[kv].T
-        good = ~(bad[:, None] | (Qo < 0))
-        n_cells = phi[0] * so
+        if m:
+            cells, good, n_cells = self._cells_with(ctx, opts, Qo, so)
+        else:                   # the first round: each option's own values are the cells
+            cells, good, n_cells = Qo, Qo >= 0, so
         offs = np.zeros(len(opts), dtype=np.int64)
         np.cumsum(n_cells[:-1], out=offs[1:])
         total = int(n_cells.sum())
@@ -192,3 +179,26 @@ class StoredActivations:
             j = int(np.lexsort((opts, -seg_max))[0])
         a, b = int(offs[j]), int(offs[j] + n_cells[j])
         return int(opts[j]), model_stats(s[a:b], f[a:b], m + 1, p)
+
+    def _cells_with(self, ctx: tuple[int, ...], opts: np.ndarray, Qo: np.ndarray,
+                    so: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per row and option v: the mixed-radix cell of sorted((*ctx, v)), whether the row has
+        a value of every variable of it, and each option's number of cells."""
+        Q, sizes = self.Q, self.sizes
+        n, m = len(self.ok), len(ctx)
+        # Mixed-radix cell of sorted((*ctx, v)) = (lo·|v| + q_v)·P_hi + hi, where lo/hi are the
+        # cells of the context variables below/above v.
+        lo = np.zeros((m + 1, n), dtype=np.int64)
+        hi = np.zeros((m + 1, n), dtype=np.int64)
+        phi = np.ones(m + 1, dtype=np.int64)
+        bad = np.zeros(n, dtype=bool)
+        for i, c in enumerate(ctx):
+            lo[i + 1] = lo[i] * sizes[c] + np.maximum(Q[:, c], 0)
+            bad |= Q[:, c] < 0
+        for i in range(m - 1, -1, -1):
+            hi[i] = np.maximum(Q[:, ctx[i]], 0) * phi[i + 1] + hi[i + 1]
+            phi[i] = phi[i + 1] * sizes[ctx[i]]
+        kv = np.searchsorted(np.asarray(ctx, dtype=np.int64), opts)
+        cells = (lo[kv].T * so + np.maximum(Qo, 0)) * phi[kv] + hi[kv].T
+        good = ~(bad[:, None] | (Qo < 0))
+        return cells, good, phi[0] * so

@@ -72,6 +72,23 @@ def cut_gain_bounds(X: np.ndarray, ok: np.ndarray, Q: np.ndarray, n_values: int,
     out = np.full((V, n_values, 1 + len(labels)), -np.inf)
     if n < 2 or V == 0:
         return out, labels
+    out[:, :, 0] = _block_bounds(X, ok, Q, n_values)
+    # A group's blocks are those of its rows alone: within a block the counts left and right
+    # of a cut are those of the group's rows (whole numbers, exact as floats either way), so
+    # each group is bounded on its own rows instead of masking all rows once per group.
+    assert groups is not None or not len(labels)
+    for gi, g in enumerate(labels.tolist(), start=1):
+        rows = groups == g
+        if np.count_nonzero(rows) >= 2:
+            out[:, :, gi] = _block_bounds(X[rows], ok[rows], Q[rows], n_values)
+    return out, labels
+
+
+def _block_bounds(X: np.ndarray, ok: np.ndarray, Q: np.ndarray, n_values: int) -> np.ndarray:
+    """The bounds of :func:`cut_gain_bounds` of the blocks (column, value) of all rows (at
+    least two): shape (columns, n_values)."""
+    n, V = X.shape
+    out = np.full((V, n_values), -np.inf)
     order = np.argsort(X, axis=0, kind="stable")
     # Row indices per column (as np.take_along_axis along axis 0, without its overhead).
     col = np.arange(V)[None, :]
@@ -91,26 +108,23 @@ def cut_gain_bounds(X: np.ndarray, ok: np.ndarray, Q: np.ndarray, n_values: int,
     seg_q = Qs.T.ravel()[flat_start]
     keep = (seg_q >= 0) & (seg_q < n_values)
     zero = np.zeros((1, V))
-    masks = [None] + [groups[order] == g for g in labels.tolist()]
-    for gi, W in enumerate(masks):
-        w = np.ones(Qs.shape) if W is None else W.astype(float)
-        cw = np.cumsum(w, axis=0)
-        cy = np.cumsum(w * ys, axis=0)
-        base_w = np.vstack([zero, cw])[start, col]
-        base_y = np.vstack([zero, cy])[start, col]
-        N = cw[end, col] - base_w
-        S = cy[end, col] - base_y
-        ln = cw - base_w
-        ls = cy - base_y
-        rn = N - ln
-        valid = (w > 0) & (rn > 0) & (Qs >= 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            gain = (binary_entropy_array(S / N) - ln / N * binary_entropy_array(ls / ln)
-                    - rn / N * binary_entropy_array((S - ls) / rn))
-        gain = np.where(valid, gain, -np.inf)
-        seg_max = np.maximum.reduceat(gain.T.ravel(), flat_start)
-        out[seg_var[keep], seg_q[keep], gi] = seg_max[keep]
-    return out, labels
+    cw = np.broadcast_to(np.arange(1.0, n + 1.0)[:, None], Qs.shape)   # cumsum of ones
+    cy = np.cumsum(ys, axis=0)
+    base_w = np.vstack([zero, cw])[start, col]
+    base_y = np.vstack([zero, cy])[start, col]
+    N = cw[end, col] - base_w
+    S = cy[end, col] - base_y
+    ln = cw - base_w
+    ls = cy - base_y
+    rn = N - ln
+    valid = (rn > 0) & (Qs >= 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gain = (binary_entropy_array(S / N) - ln / N * binary_entropy_array(ls / ln)
+                - rn / N * binary_entropy_array((S - ls) / rn))
+    gain = np.where(valid, gain, -np.inf)
+    seg_max = np.maximum.reduceat(gain.T.ravel(), flat_start)
+    out[seg_var[keep], seg_q[keep]] = seg_max[keep]
+    return out
 
 
 def candidate_range(cut: Cut, vmin: float, vmax: float, bin_size: float,

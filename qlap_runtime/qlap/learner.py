@@ -456,16 +456,17 @@ class ModelLearner:
         return evaluate
 
     def _update_contexts(self) -> None:
-        version = self.perception.landmarks_version
+        signature = self.perception.landmark_signature
         for dbn_id in sorted(self.dbns):
             dbn = self.dbns[dbn_id]
             if dbn.act_n < 1:
                 continue
             cands = self.context_candidates(dbn)
             # Algorithm 3 is a function of the stored activations (changed only by record(),
-            # which counts dbn.total), the context, the quantity spaces and the candidates: a
-            # DBN whose search gave "no change" with the same inputs gives it again.
-            key = (dbn.total, dbn.context, version, tuple(cands))
+            # which counts dbn.total), the context, the candidates and the quantity spaces of
+            # the candidates and context variables: a DBN whose search gave "no change" with
+            # the same inputs gives it again (landmarks of other variables do not matter).
+            key = (dbn.total, dbn.context, tuple(cands), signature((*cands, *dbn.context)))
             if dbn.context_unchanged == key:
                 continue
             X, ok = dbn.stored()
@@ -569,19 +570,26 @@ class ModelLearner:
         useful = (open_prob > p.theta_ig / 2 - _TOL).any(axis=1)
         real_vars = [v for v, u in zip(real_vars, useful.tolist(), strict=True) if u]
         cols, prob = cols[useful], prob[useful]
+        is_motor = np.array([v.kind is Kind.MOTOR for v in real_vars], dtype=bool)
         for dbn_id in sorted(self.dbns):
             dbn = self.dbns[dbn_id]
             if dbn.kind != CHANGE or dbn.act_n < p.min_data_points:
                 continue
             X, ok = dbn.stored()
+            # App. D.2: a motor only as the DBN's antecedent, a magnitude only if it is not
+            # (the loop below skips the others): only these columns are bounded.
+            rel = np.flatnonzero(is_motor == (cols == dbn.antecedent.var))
             Q = np.full(X.shape, -1, dtype=np.int64)              # only the columns used
-            Q[:, cols] = self.perception.quantize_columns(X, cols)
+            Q[:, cols[rel]] = self.perception.quantize_columns(X, cols[rel])
             cq = None
             if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
                 cq = self.perception.quantize_columns(X, dbn.context)[:, 0]
             # Blocks whose gain bound cannot pass eq. 4.17 are skipped: best_cut there could
-            # only give a cut that is_candidate rejects.
-            bound, labels = cut_gain_bounds(X[:, cols], ok, Q[:, cols], n_values, cq)
+            # only give a cut that is_candidate rejects (cut_gain_bounds is column by column,
+            # so the columns bounded give the bounds they have among all columns).
+            sub, labels = cut_gain_bounds(X[:, cols[rel]], ok, Q[:, cols[rel]], n_values, cq)
+            bound = np.full((len(cols), *sub.shape[1:]), -np.inf)
+            bound[rel] = sub
             with np.errstate(invalid="ignore"):
                 passing = (bound > p.theta_ig - _TOL) & \
                     (bound * prob[:, :, None] > p.theta_ig / 2 - _TOL)

@@ -21,6 +21,7 @@ Conventions
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -540,19 +541,16 @@ class TransitionModel:
         space = self.space
         rel_a = _rel_actions(rel_action, self.actions)
         rel_r = _rel_states(rel_model, space, space.all_values())
-        from_model, from_action, wrong_cols, inapplicable = self._p1_columns()
-        # Every column is a copy of rel(r, s) or of its action's rel(a), as in build.
-        p1 = np.empty((space.n_states, len(self.actions)))
-        p1[:, from_model] = rel_r[:, None]
-        p1[:, from_action] = rel_a[from_action]
-        for j, wrong in wrong_cols:
-            p1[wrong, j] = 0.0
-        p1[inapplicable] = 0.0
+        source, pair_source = self._p1_sources()
+        # Every entry of p1 is a copy of rel(r, s), of its action's rel(a) or 0.0, as in
+        # build: gathered at once from the three.
+        values = np.concatenate((rel_r, rel_a, _ZERO))
+        p1 = values.take(source)
         p1.flags.writeable = False
         model = TransitionModel(space, self.actions, self.spec, self.next1, p1, self.next2,
                                 self.applicable, self.goal)
         object.__setattr__(model, "_p1_recipe", recipe)
-        object.__setattr__(model, "_p1_cols", self.__dict__["_p1_cols"])
+        object.__setattr__(model, "_p1_src", self.__dict__["_p1_src"])
         rewards = self.__dict__.get("_rewards")     # R does not depend on p1
         if rewards is not None:
             object.__setattr__(model, "_rewards", rewards)
@@ -560,22 +558,29 @@ class TransitionModel:
         if pairs is not None:
             # The applicable pairs, rewards and next states do not depend on p1 either.
             key, (flat, _, _, r1, r2, n1, n2) = pairs
-            a1 = p1.ravel()[flat]
+            a1 = values.take(pair_source)
             object.__setattr__(model, "_applicable_pairs",
                                (key, (flat, a1, 1.0 - a1, r1, r2, n1, n2)))
         return model
 
-    def _p1_columns(self) -> tuple[np.ndarray, np.ndarray, tuple, np.ndarray]:
-        """The recipe of ``p1`` by columns (cached): those from rel(r, s), those from rel(a),
-        the (column, wrong-side rows) zeroed, and the mask of inapplicable pairs."""
-        cached = self.__dict__.get("_p1_cols")
+    def _p1_sources(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where each entry of ``p1`` comes from (cached), as indices into rel(r, s) (one per
+        state), then rel(a) (one per action), then a 0.0: per pair, and per applicable pair
+        (in the order of :func:`_applicable_pairs`). From the recipe :meth:`build` records:
+        columns from rel(r, s) or from rel(a), wrong-side rows zeroed, inapplicable pairs 0."""
+        cached = self.__dict__.get("_p1_src")
         if cached is None:
             recipe = self.__dict__["_p1_recipe"]
-            cached = (np.array([j for j, (m, _) in enumerate(recipe) if m], dtype=np.int64),
-                      np.array([j for j, (m, _) in enumerate(recipe) if not m], dtype=np.int64),
-                      tuple((j, w) for j, (_, w) in enumerate(recipe) if w is not None),
-                      ~self.applicable)
-            object.__setattr__(self, "_p1_cols", cached)
+            n_s, n_a = self.applicable.shape
+            source = np.empty((n_s, n_a), dtype=np.int64)
+            states = np.arange(n_s, dtype=np.int64)
+            for j, (from_model, wrong) in enumerate(recipe):
+                source[:, j] = states if from_model else n_s + j
+                if wrong is not None:
+                    source[wrong, j] = n_s + n_a
+            source[~self.applicable] = n_s + n_a
+            cached = (source, source.ravel()[np.flatnonzero(self.applicable)])
+            object.__setattr__(self, "_p1_src", cached)
         return cached
 
     def rewards(self, params: Params) -> tuple[np.ndarray, np.ndarray]:
@@ -604,6 +609,10 @@ class TransitionModel:
     def initial_q(self, fill: float = 0.0) -> np.ndarray:
         """A Q-table of ``fill`` on applicable pairs and the sentinel elsewhere."""
         return np.where(self.applicable, float(fill), NOT_APPLICABLE)
+
+
+_ZERO = np.zeros(1)
+"""The 0.0 of :meth:`TransitionModel._p1_sources`."""
 
 
 def _rel_actions(rel: RelAction, actions: Sequence[MDPAction]) -> np.ndarray:
@@ -845,14 +854,17 @@ def greedy_action(q: np.ndarray, s: int, rng: np.random.Generator,
     With probability ε a uniformly random applicable action, else a maximiser of Q(s, ·)
     (ties broken uniformly at random). Draws from ``rng`` only.
     """
-    row = np.asarray(q[s], dtype=float)
-    ok = np.flatnonzero(np.isfinite(row))
-    if ok.size == 0:
+    # Plain Python on the row's floats: a plan has a few actions, and this runs at every
+    # sub-action choice, where numpy's per-call overhead dominated (the same comparisons).
+    row = np.asarray(q[s], dtype=float).tolist()
+    ok = [j for j, x in enumerate(row) if math.isfinite(x)]
+    if not ok:
         return None
     if rng.random() < epsilon:
-        return int(ok[rng.integers(ok.size)])
-    best = ok[row[ok] == row[ok].max()]
-    return int(best[0] if best.size == 1 else best[rng.integers(best.size)])
+        return ok[int(rng.integers(len(ok)))]
+    top = max(row[j] for j in ok)
+    best = [j for j in ok if row[j] == top]
+    return best[0] if len(best) == 1 else best[int(rng.integers(len(best)))]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1040,15 +1052,7 @@ def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPActi
     cols = action_map(old_actions, new_actions, maps)
     known = np.flatnonzero(cols >= 0)
     if dropped:
-        acc = np.zeros((new.n_states, known.size))
-        cnt = np.zeros((new.n_states, known.size))
-        for combo in np.ndindex(*(old.sizes[i] for i in dropped)):
-            for i, q in zip(dropped, combo, strict=True):
-                old_vals[:, i] = q
-            block = q_old[np.ix_(_ravel(old_vals, old.sizes), cols[known])]
-            finite = np.isfinite(block)
-            acc += np.where(finite, block, 0.0)
-            cnt += finite
+        acc, cnt = _merged_ancestors(q_old, old, old_vals, dropped, cols[known])
         has = cnt > 0
     else:
         # One ancestor per state (the usual growth): its values, as the mean of one value
@@ -1070,6 +1074,35 @@ def grow_q(q_old: np.ndarray, old: PlanStateSpace, old_actions: Sequence[MDPActi
     sub[ok] = acc[ok] / cnt[ok] if dropped else block[ok] + 0.0
     out[:, known] = sub
     return out
+
+
+def _merged_ancestors(q_old: np.ndarray, old: PlanStateSpace, old_vals: np.ndarray,
+                      dropped: Sequence[int], cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sum and count of the finite Q-values of the old states that merge into each new state
+    when the old variables at positions ``dropped`` leave the space (:func:`grow_q`), for the
+    old action columns ``cols``.
+
+    ``old_vals`` holds each new state's values of the kept old variables (the dropped columns
+    are ignored). The merge is a function of those values alone, so it is computed once per
+    combination of kept values (the old table with the dropped variables' axes first) and
+    then read for each new state. Each sum is accumulated in the order of ``np.ndindex`` over
+    the dropped values, from 0.0, so it is bit for bit the one of adding the combinations one
+    after another.
+    """
+    dropped = list(dropped)
+    kept = [i for i in range(len(old.vars)) if i not in dropped]
+    grid = np.asarray(q_old, dtype=float)[:, cols].reshape(*old.sizes, len(cols))
+    grid = np.moveaxis(grid, dropped, list(range(len(dropped))))  # C order: np.ndindex's
+    n_combos = int(np.prod([old.sizes[i] for i in dropped], dtype=np.int64))
+    grid = grid.reshape(n_combos, -1, len(cols))
+    finite = np.isfinite(grid)
+    values = np.where(finite, grid, 0.0)
+    acc = np.zeros(values.shape[1:])
+    for block in values:
+        acc += block
+    cnt = finite.sum(axis=0).astype(float)
+    rows = _ravel(old_vals[:, kept], [old.sizes[i] for i in kept])
+    return acc[rows], cnt[rows]
 
 
 def descendant_state(old: PlanStateSpace, new: PlanStateSpace,

@@ -14,7 +14,7 @@ Bounded histories of real and qualitative values are kept for the landmark searc
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -189,6 +189,15 @@ class Perception:
         # the per-history caches of history()/bin_size()/satisfied_fraction().
         self.landmarks_version = getattr(self, "landmarks_version", 0) + 1
         self._hist_cache: tuple | None = None
+
+    def landmark_signature(self, variables: Iterable[int]) -> tuple:
+        """What the qualitative values of ``variables`` are a function of (besides the real
+        values): each one's landmarks, in order (a nominal variable has none; its values are
+        its indices). Caches of results computed from these variables' qualitative values
+        alone stay valid while the signature is equal (landmarks are immutable values), even
+        when other variables gained landmarks (``landmarks_version`` changed)."""
+        spaces = self.spaces
+        return tuple(tuple(spaces[v].landmarks) for v in variables)
 
     def add_landmark(self, var: int, lm: Landmark) -> int:
         """Insert a landmark on a motor or magnitude variable; returns the split interval."""

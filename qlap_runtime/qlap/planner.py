@@ -119,7 +119,9 @@ class Plan:
         changed (state and action indices of the old space are void).
         """
         g = dbn.consequent                       # landmarks may have renumbered it
-        self.goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
+        goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
+        if goal != self.goal:
+            self.goal = goal                     # equal: kept, as the space below
         self.action = (g.var, g.value)
         ante = dbn.antecedent
         spec = PlanSpec(goal=self.goal, antecedent=ante, magnitude_plan=self.kind != CHANGE,
@@ -129,6 +131,11 @@ class Plan:
         if self.space is not None and space == self.space:
             space = self.space                   # equal: keep the one with its cached arrays
         actions = build_actions(space, spec)
+        # Equal ones are kept (as the space): the model cache then compares identical objects.
+        if spec == self.spec:
+            spec = self.spec
+        if actions == self.actions:
+            actions = self.actions
         if space.n_states * len(actions) > self.params.max_plan_entries:
             raise PlanTooLarge(f"plan for DBN {self.dbn_id}: {space.n_states} states × "
                                f"{len(actions)} actions > {self.params.max_plan_entries}")
@@ -137,6 +144,13 @@ class Plan:
         old_space, old_actions, old_q = self.space, self.actions, self.q
         self.spec, self.space, self.actions = spec, space, actions
         self.usable = usable
+        cached = getattr(self, "_model_cache", None)
+        if same and self.model is not None and cached is not None \
+                and cached[2] is self.model and cached[0] == self._structure():
+            # Only rel(a) and rel(r, s) may have changed, and the model's probabilities are
+            # read by Dyna and value iteration alone, which get the model anew with the
+            # reliabilities of their time (refresh; a structure change): left until then.
+            return False
         self.model = self._model(rel_action, rel_model)
         if not same:
             model, params = self.model, self.params
@@ -153,14 +167,13 @@ class Plan:
         assert self.space is not None
         assert self.spec is not None
         space = self.space
-        usable = tuple(a.var < 0 or self.usable is None or bool(self.usable(a.var, a.value))
-                       for a in self.actions)
+        structure = self._structure()
+        usable = structure[3]
         rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
         rel_r = rel_model(space)
         # The model is a function of these alone (the regress mask below follows from the
         # space, actions, spec and usability): reuse it when none changed, and when only the
         # reliabilities did (Dyna refreshes) recompute just its probabilities.
-        structure = (space, tuple(self.actions), self.spec, usable)
         rels = (tuple(rel_a), np.asarray(rel_r, dtype=float).tobytes())
         cached = getattr(self, "_model_cache", None)
         if cached is not None and cached[0] == structure:
@@ -188,6 +201,13 @@ class Plan:
         model = TransitionModel.build(space, self.actions, self.spec, rel_a, rel_r, regress)
         self._model_cache = (structure, rels, model)
         return model
+
+    def _structure(self) -> tuple:
+        """What the model is, besides rel(a) and rel(r, s), a function of: the space, the
+        actions, the spec and each action's usability."""
+        usable = tuple(a.var < 0 or self.usable is None or bool(self.usable(a.var, a.value))
+                       for a in self.actions)
+        return (self.space, tuple(self.actions), self.spec, usable)
 
     def refresh(self, rel_action: RelAction, rel_model, dyna: bool) -> None:
         """New statistics: rebuild T_i and, unless ablated, one Dyna sweep (§5.2.2, eq. 5.10)."""
@@ -310,6 +330,7 @@ class PlanGroups:
         """The actions with plans, in order."""
         self.groups = [sorted(by_action[k], key=lambda pl: pl.id) for k in self.keys]
         """The plans of each action, by id."""
+        self._index = {k: i for i, k in enumerate(self.keys)}
         flat = [pl for group in self.groups for pl in group]
         self.rows: list[list[int]] = []
         """Row of each group's plans in :meth:`known`'s answer."""
@@ -334,6 +355,11 @@ class PlanGroups:
             self._max_var[r] = max(pl.space.vars, default=-1)
             self._has_space[r] = True
 
+    def plans_of(self, action: tuple[int, int]) -> list[Plan]:
+        """The plans of ``action`` by id (none: an empty list)."""
+        i = self._index.get(action)
+        return [] if i is None else list(self.groups[i])
+
     @staticmethod
     def key_of(plans: Mapping[int, Plan]) -> tuple:
         """What the groups are a function of: each plan with its action, goal and space."""
@@ -346,9 +372,43 @@ class PlanGroups:
         returns the groups and the ``(key, groups)`` pair to keep for the next call."""
         key = cls.key_of(plans)
         if cached is not None and cached[0] == key:
-            return cached[1], cached
+            # Keep the new key: its objects are the plans' own, so the next comparison
+            # meets identical objects (a rebuilt plan's equal goal is a new Event).
+            return cached[1], (key, cached[1])
         groups = cls(plans)
         return groups, (key, groups)
+
+    def _by_group(self, magnitudes: frozenset[int]) -> tuple[np.ndarray, ...]:
+        """Per group its action's variable and value and whether the variable is one of
+        ``magnitudes``; per row its group and its plan's goal direction (cached)."""
+        cached = self.__dict__.get("_group_arrays")
+        if cached is not None and cached[0] == magnitudes:
+            return cached[1]
+        out = (np.array([k[0] for k in self.keys], dtype=np.int64),
+               np.array([k[1] for k in self.keys], dtype=np.int64),
+               np.array([k[0] in magnitudes for k in self.keys], dtype=bool),
+               np.array([g for g, group in enumerate(self.groups) for _ in group],
+                        dtype=np.int64),
+               np.array([pl.goal.direction for group in self.groups for pl in group],
+                        dtype=np.int64))
+        self._group_arrays = (magnitudes, out)
+        return out
+
+    def usable(self, q: np.ndarray, magnitudes: frozenset[int]) -> tuple[list[int], list[bool]]:
+        """The groups whose action is not achieved in ``q`` (v ≠ q) and that have a usable
+        plan there: its state known (:meth:`known`) and, for an action on one of the
+        ``magnitudes``, its goal direction the side q is reached from (1 from below, −1 from
+        above; §5.3). Returns those groups' indices in order and the per-row usability, the
+        tests of the agent's IAC scan done at once for all plans."""
+        row_ok = np.asarray(self.known(q), dtype=bool)
+        if not self.keys:
+            return [], []
+        var, val, is_mag, row_group, row_dir = self._by_group(magnitudes)
+        qv = np.asarray(q)[var]
+        side = np.where(qv < val, 1, -1)
+        row_ok &= ~is_mag[row_group] | (row_dir == side[row_group])
+        has = np.bincount(row_group[row_ok], minlength=len(self.keys)) > 0
+        return np.flatnonzero(has & (qv != val)).tolist(), row_ok.tolist()
 
     def known(self, q: np.ndarray) -> list[bool]:
         """Per row: the plan has a space and :meth:`~.mdp.PlanStateSpace.index_from_full` of

@@ -95,3 +95,89 @@ def test_cut_gain_bounds_bound_every_block_best_cut():
                         assert cut.gain <= bound[j, q, gi] + 1e-12
                     if m.sum() < 2:
                         assert bound[j, q, gi] == -np.inf
+
+
+def test_cut_gain_bounds_of_some_columns_are_those_columns_of_all():
+    # The learner bounds only the columns a DBN may take a landmark on (App. D.2): each
+    # column's bounds do not depend on the other columns, bit for bit.
+    from qlap_runtime.qlap.landmarks import cut_gain_bounds
+
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        n, V = int(rng.integers(2, 200)), int(rng.integers(2, 8))
+        X = np.round(rng.normal(size=(n, V)), int(rng.integers(0, 3)))
+        X[rng.random(X.shape) < 0.05] = np.nan
+        ok = rng.random(n) < rng.random()
+        Q = np.where(np.isnan(X), -1, (X > -0.5).astype(int) * 2 + (X > 0.5) * 2)
+        groups = rng.integers(-1, 3, size=n) if rng.random() < 0.5 else None
+        full, labels = cut_gain_bounds(X, ok, Q, 5, groups)
+        some = np.flatnonzero(rng.random(V) < 0.5)
+        part, part_labels = cut_gain_bounds(X[:, some], ok, Q[:, some], 5, groups)
+        assert part.tobytes() == full[some].tobytes()
+        assert part_labels.tobytes() == labels.tobytes()
+
+
+def _gain_bounds_masked(X, ok, Q, n_values, groups=None):
+    """cut_gain_bounds as it was first written: each group as a mask over all rows."""
+    from qlap_runtime.qlap.probability import binary_entropy_array
+
+    n, V = X.shape
+    labels = np.unique(groups[groups >= 0]) if groups is not None else np.zeros(0, np.int64)
+    out = np.full((V, n_values, 1 + len(labels)), -np.inf)
+    if n < 2 or V == 0:
+        return out, labels
+    order = np.argsort(X, axis=0, kind="stable")
+    col = np.arange(V)[None, :]
+    Qs = Q[order, col]
+    ys = ok.astype(float)[order]
+    rows = np.arange(n)[:, None]
+    is_start = np.ones(Qs.shape, dtype=bool)
+    is_start[1:] = Qs[1:] != Qs[:-1]
+    is_end = np.ones(Qs.shape, dtype=bool)
+    is_end[:-1] = is_start[1:]
+    start = np.maximum.accumulate(np.where(is_start, rows, 0), axis=0)
+    end = np.minimum.accumulate(np.where(is_end, rows, n)[::-1], axis=0)[::-1]
+    flat_start = np.flatnonzero(is_start.T.ravel())
+    seg_var = flat_start // n
+    seg_q = Qs.T.ravel()[flat_start]
+    keep = (seg_q >= 0) & (seg_q < n_values)
+    zero = np.zeros((1, V))
+    masks = [None] + [groups[order] == g for g in labels.tolist()]
+    for gi, W in enumerate(masks):
+        w = np.ones(Qs.shape) if W is None else W.astype(float)
+        cw = np.cumsum(w, axis=0)
+        cy = np.cumsum(w * ys, axis=0)
+        base_w = np.vstack([zero, cw])[start, col]
+        base_y = np.vstack([zero, cy])[start, col]
+        N = cw[end, col] - base_w
+        S = cy[end, col] - base_y
+        ln = cw - base_w
+        ls = cy - base_y
+        rn = N - ln
+        valid = (w > 0) & (rn > 0) & (Qs >= 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            gain = (binary_entropy_array(S / N) - ln / N * binary_entropy_array(ls / ln)
+                    - rn / N * binary_entropy_array((S - ls) / rn))
+        gain = np.where(valid, gain, -np.inf)
+        seg_max = np.maximum.reduceat(gain.T.ravel(), flat_start)
+        out[seg_var[keep], seg_q[keep], gi] = seg_max[keep]
+    return out, labels
+
+
+def test_cut_gain_bounds_of_each_group_on_its_rows_are_those_of_the_masks():
+    # Groups bounded on their own rows give bit for bit the bounds of masking all rows.
+    from qlap_runtime.qlap.landmarks import cut_gain_bounds
+
+    rng = np.random.default_rng(12)
+    for _ in range(60):
+        n, V = int(rng.choice([1, 2, 3, 10, 60, 200])), int(rng.integers(1, 6))
+        X = np.round(rng.normal(size=(n, V)), int(rng.integers(0, 3)))
+        X[rng.random(X.shape) < 0.05] = np.nan
+        ok = rng.random(n) < rng.random()
+        Q = np.where(np.isnan(X), -1, (X > -0.5).astype(int) * 2 + (X > 0.5) * 2)
+        groups = rng.integers(-1, int(rng.integers(1, 8)), size=n) if rng.random() < 0.8 \
+            else None
+        got, labels = cut_gain_bounds(X, ok, Q, 5, groups)
+        want, want_labels = _gain_bounds_masked(X, ok, Q, 5, groups)
+        assert got.shape == want.shape and got.tobytes() == want.tobytes()
+        assert labels.tobytes() == want_labels.tobytes()

@@ -182,3 +182,4 @@ def test_algorithm_4_puts_no_motor_in_a_context():
     assert [m.source for m in w] == ["initial"], w
     u = learner.perception.spaces[learner.table.index("u")].landmarks
     assert any(0.25 < m.lb <= m.ub < 0.35 for m in u), u    # the threshold, via ⟨u→q ⇒ ẋ⟩
+

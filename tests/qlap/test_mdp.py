@@ -634,3 +634,81 @@ def test_cells_are_the_mixed_radix_cells_of_the_state_values() -> None:
     assert space.cells((2, 4), (5, 3)) is got               # cached per arguments
     assert not got.flags.writeable
     np.testing.assert_array_equal(space.cells((), ()), np.zeros(space.n_states))
+
+
+def _merged_reference(q_old, old, new, old_actions, new_actions, maps):
+    """grow_q's merge of dropped variables, one combination of their values at a time."""
+    vals = new.all_values()
+    old_vals = np.zeros((new.n_states, len(old.vars)), dtype=np.int64)
+    dropped = []
+    for i, v in enumerate(old.vars):
+        if v in new:
+            col = vals[:, new.position(v)]
+            old_vals[:, i] = maps[v][col] if v in maps else col
+        else:
+            dropped.append(i)
+    cols = action_map(old_actions, new_actions, maps)
+    known = np.flatnonzero(cols >= 0)
+    acc = np.zeros((new.n_states, known.size))
+    cnt = np.zeros((new.n_states, known.size))
+    for combo in np.ndindex(*(old.sizes[i] for i in dropped)):
+        for i, q in zip(dropped, combo, strict=True):
+            old_vals[:, i] = q
+        idx = np.ravel_multi_index(tuple(old_vals.T), old.sizes)
+        block = q_old[np.ix_(idx, cols[known])]
+        finite = np.isfinite(block)
+        acc += np.where(finite, block, 0.0)
+        cnt += finite
+    return acc, cnt, known
+
+
+def test_grow_q_merging_dropped_variables_matches_one_combination_at_a_time() -> None:
+    # Two of four variables dropped (one of them between kept ones), one kept variable split,
+    # one added; random values with −inf, −0.0 and mixed magnitudes: bit-identical sums.
+    rng = np.random.default_rng(7)
+    old = PlanStateSpace((3, 1, 4, 2), (3, 2, 3, 2))
+    new = PlanStateSpace((4, 2, 6), (5, 2, 2))
+    maps = {4: np.array([0, 1, 1, 1, 2])}
+    old_actions = [MDPAction(3, 0), MDPAction(4, 2), MDPAction(1, 1), MDPAction(2, 1)]
+    new_actions = [MDPAction(6, 0), MDPAction(4, 3), MDPAction(2, 1), MDPAction(4, 0)]
+    for _ in range(20):
+        q_old = rng.normal(0, 10, (old.n_states, len(old_actions))) * \
+            10.0 ** rng.integers(-8, 8, (old.n_states, len(old_actions)))
+        q_old[rng.random(q_old.shape) < 0.3] = NOT_APPLICABLE
+        q_old[rng.random(q_old.shape) < 0.1] = -0.0
+        acc, cnt, known = _merged_reference(q_old, old, new, old_actions, new_actions, maps)
+        base = np.full((new.n_states, len(new_actions)), 7.0)
+        out = grow_q(q_old, old, old_actions, new, new_actions, maps, base)
+        assert out is not None
+        want = base.copy()
+        sub = want[:, known]
+        ok = cnt > 0
+        sub[ok] = acc[ok] / cnt[ok]
+        want[:, known] = sub
+        assert out.tobytes() == want.tobytes()
+
+
+def _greedy_action_numpy(q, s, rng, epsilon):
+    """greedy_action as first written, with numpy (the reference)."""
+    row = np.asarray(q[s], dtype=float)
+    ok = np.flatnonzero(np.isfinite(row))
+    if ok.size == 0:
+        return None
+    if rng.random() < epsilon:
+        return int(ok[rng.integers(ok.size)])
+    best = ok[row[ok] == row[ok].max()]
+    return int(best[0] if best.size == 1 else best[rng.integers(best.size)])
+
+
+def test_greedy_action_chooses_and_draws_as_the_numpy_version() -> None:
+    # Ties, −inf (not applicable), rows with nothing applicable, ε from 0 to 1: the same
+    # choices and the same draws (the generators end in the same state).
+    data = np.random.default_rng(2)
+    q = data.integers(-2, 3, size=(300, 6)).astype(float)
+    q[data.random(q.shape) < 0.3] = NOT_APPLICABLE
+    q[:5] = NOT_APPLICABLE
+    for eps in (0.0, 0.05, 0.5, 1.0):
+        a, b = np.random.default_rng(9), np.random.default_rng(9)
+        for s in range(q.shape[0]):
+            assert greedy_action(q, s, a, eps) == _greedy_action_numpy(q, s, b, eps)
+        assert a.random() == b.random()

@@ -86,3 +86,15 @@ def test_landmarks_keep_to_the_variable_resolution():
     assert learner._fit_resolution(u, 320.0, 330.0) is None          # gap 10.5 < 20
     assert learner._fit_resolution(u, 330.0, 352.0) == (330.0, 352.0)  # gap 20.5
     assert learner._fit_resolution(u, -12.0, -8.0) is None            # 8 from the landmark 0
+
+
+def test_landmark_signature_changes_only_with_the_variables_landmarks():
+    per, table = perception()
+    u, g, x = table.index("u"), table.index("g"), table.index("x")
+    before = per.landmark_signature((u, x))
+    assert before == (tuple(per.spaces[u].landmarks), ())
+    per.add_landmark(g, Landmark(0.3, 0.31))            # another variable: same signature
+    assert per.landmark_signature((u, x)) == before
+    per.add_landmark(x, Landmark(2.0, 2.1))
+    after = per.landmark_signature((u, x))
+    assert after != before and after[1] == (Landmark(2.0, 2.1),)

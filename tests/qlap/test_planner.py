@@ -224,3 +224,80 @@ def test_cached_cell_reliabilities_are_the_scalar_formula_after_every_change() -
         if rng.random() < 0.2:                              # a recount: new arrays
             dbn.cpt_s, dbn.cpt_f = dbn.cpt_s + 1.0, dbn.cpt_f.copy()
     assert plan.rel_state(-1) == plan.rel() and plan.rel_state(3) == plan.rel()
+
+
+def test_plan_groups_usable_agrees_with_the_scan_one_plan_at_a_time() -> None:
+    # usable() against the IAC scan's tests plan by plan: the action not achieved, the plan's
+    # state known, and for an action on a magnitude the plan's goal direction the side the
+    # value is reached from; a magnitude group (X, 1) with a plan from each side.
+    table = VariableTable.from_specs(SPECS)
+    sizes = [3, 3, 3]
+    plans: dict[int, Plan] = {}
+    specs = [(3, CHANGE, Event(U, 0), Event(XDOT, 2)), (1, CHANGE, Event(U, 2), Event(XDOT, 2)),
+             (2, CHANGE, Event(U, 2), Event(XDOT, 0)),
+             (4, "magnitude", Event(XDOT, 2), Event(X, 1, 1)),
+             (5, "magnitude", Event(XDOT, 0), Event(X, 1, -1))]
+    for pid, kind, ante, cons in specs:
+        dbn = DBN(pid, kind, ante, cons, (), 0, len(table), 200)
+        plan = Plan(pid, dbn, table, P, 0, len(table))
+        plan.build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), fresh=True)
+        plans[pid] = plan
+    groups, _ = PlanGroups.for_plans(plans, None)
+    magnitudes = frozenset({X})
+    rng = np.random.default_rng(3)
+    for q in rng.integers(-1, 3, size=(300, 3)):
+        found, usable = groups.usable(q, magnitudes)
+        want_found = []
+        for g, (key, group, rows) in enumerate(zip(groups.keys, groups.groups, groups.rows,
+                                                  strict=True)):
+            ok = []
+            for pl, r in zip(group, rows, strict=True):
+                good = pl.space.index_from_full(q.tolist()) is not None
+                if key[0] in magnitudes:
+                    good &= pl.goal.direction == (1 if q[key[0]] < key[1] else -1)
+                assert usable[r] == good
+                ok.append(good)
+            if q[key[0]] != key[1] and any(ok):
+                want_found.append(g)
+        assert found == want_found
+
+
+def test_plan_groups_plans_of_is_the_filter_of_all_plans() -> None:
+    table = VariableTable.from_specs(SPECS)
+    sizes = [3, 3, 3]
+    plans: dict[int, Plan] = {}
+    for pid, ante, cons in [(3, Event(U, 0), Event(XDOT, 2)), (1, Event(U, 2), Event(XDOT, 2)),
+                            (2, Event(U, 2), Event(XDOT, 0))]:
+        dbn = DBN(pid, CHANGE, ante, cons, (), 0, len(table), 200)
+        plans[pid] = Plan(pid, dbn, table, P, 0, len(table))
+        plans[pid].build(dbn, sizes, rel_half, dbn_rel_state(dbn, sizes, 1.0), fresh=True)
+    groups = PlanGroups(plans)
+    for key in [(XDOT, 0), (XDOT, 2), (XDOT, 1), (X, 0)]:
+        want = sorted((pl for pl in plans.values() if pl.action == key), key=lambda pl: pl.id)
+        assert groups.plans_of(key) == want
+
+
+def test_a_rebuild_of_the_same_structure_leaves_the_model_to_the_next_refresh() -> None:
+    # Rebuilt with new reliabilities and the same structure, a plan keeps its model (only
+    # Dyna and value iteration read p1); its next refresh gives the model and Dyna sweep of a
+    # plan whose rebuild computed the model.
+    lazy, dbn, _ = make_plan()
+    eager, _, _ = make_plan()
+    sizes = [3, 1, 3]
+    rng = np.random.default_rng(6)
+    for _ in range(4):
+        dbn.record(np.zeros(3), bool(rng.random() < 0.7), 0)
+        rel_a = float(rng.uniform(0.1, 0.9))
+
+        def rel(var: int, value: int, r: float = rel_a) -> float:
+            return r
+
+        before = lazy.model
+        assert not lazy.build(dbn, sizes, rel, dbn_rel_state(dbn, sizes, 1.0))
+        assert lazy.model is before
+        eager._model_cache = None                       # the rebuild computes the model
+        assert not eager.build(dbn, sizes, rel, dbn_rel_state(dbn, sizes, 1.0))
+        for plan in (lazy, eager):
+            plan.refresh(rel, dbn_rel_state(dbn, sizes, 1.0), dyna=True)
+        assert lazy.model.p1.tobytes() == eager.model.p1.tobytes()
+        assert lazy.q.tobytes() == eager.q.tobytes()
