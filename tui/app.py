@@ -235,7 +235,10 @@ class QlapApp(App):
         yield Footer(show_command_palette=False)
 
     def _panel(self, cls):
-        """A panel of the main screen, also while a dialog (goal, help) is on top."""
+        """A panel of the main screen, also while a dialog (goal, help) is on top;
+        :class:`NoMatches` once the app is shutting down (its screens gone)."""
+        if not self.screen_stack:
+            raise NoMatches(f"no screen for {cls.__name__}: the app is shutting down")
         return self.screen_stack[0].query_one(cls)
 
     def on_mount(self) -> None:
@@ -367,7 +370,10 @@ class QlapApp(App):
         self._panel(PlansPanel).show(action)
 
     def on_actions_panel_selected(self, event: ActionsPanel.Selected) -> None:
-        self._show_plans(event.label)
+        try:
+            self._show_plans(event.label)
+        except NoMatches:       # a selection still queued when the app shut down
+            self.log.debug("selection during shut-down skipped")
 
     # ----------------------------------------------------------------------------- control
     def send(self, command: str, **args: Any) -> bool:

@@ -241,3 +241,16 @@ def test_a_viewer_on_loopback_attaches_to_a_listening_driver(tmp_path):
         finally:
             d.stop()
     assert keys.validate_run_id("remote")
+
+
+def test_a_selection_queued_at_shut_down_is_skipped_not_a_crash():
+    """Once the app's screens are gone (shutting down), a panel lookup is NoMatches and a
+    selection message still queued is skipped (it raised IndexError on a loaded machine)."""
+    from textual.css.query import NoMatches
+
+    app = QlapApp(connect="tcp/127.0.0.1:1")             # never run: no screen at all
+    assert app.screen_stack == []
+    with pytest.raises(NoMatches, match="shutting down"):
+        app._panel(PlansPanel)
+    app.knowledge = type("K", (), {"actions": []})()
+    app.on_actions_panel_selected(ActionsPanel.Selected("a(ḣ_x, [+])"))   # no exception
