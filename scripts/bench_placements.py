@@ -41,14 +41,16 @@ def main() -> None:
     world.close()
     reference = knowledge_json(agent)
     print(f"{args.world}, {args.steps} steps, lag {args.lag}, babbling {args.babble}:")
-    print(f"  sync       {args.steps / wall:8,.0f} steps/s")
+    sync_wall = wall
+    print(f"  sync       {args.steps / wall:8,.0f} steps/s  wall {wall:.1f} s")
     for name, fn in (("embedded", run_embedded), ("processes", run_processes)):
         out = Path(tempfile.mkdtemp(prefix=f"bench-{name}-"))
         s = fn(RunContext(f"bench-{name}", args.world, args.steps, args.seed, params, out=out))
         same = (out / "knowledge.json").read_text() == reference
+        loop_wall = args.steps / s["loop_steps_per_s"]
         print(f"  {name:10s} {s['loop_steps_per_s']:8,.0f} steps/s (start-up excluded; "
-              f"{s['steps_per_s']:,.0f} with it)  waits {s['waits']}  "
-              f"identical knowledge: {same}")
+              f"{s['steps_per_s']:,.0f} with it)  wall / sync {loop_wall / sync_wall:.2f}  "
+              f"waits {s['waits']}  identical knowledge: {same}")
     if args.local:
         from tui.driver import LocalDriver
 
@@ -65,7 +67,7 @@ def main() -> None:
         world.close()
         same = (out / "knowledge.json").read_text() == reference
         print(f"  {'local':10s} {args.steps / wall:8,.0f} steps/s (start-up included)  "
-              f"identical knowledge: {same}")
+              f"wall / sync {wall / sync_wall:.2f}  identical knowledge: {same}")
 
 
 if __name__ == "__main__":
