@@ -394,7 +394,8 @@ class Publisher:
             self.key, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=self.congestion,
             priority=priority, express=express)
         self._routes = LocalRoutes.of(session)
-        self._local: tuple[int, list[TrioSubscriber]] = (-1, [])
+        self._local: tuple[int, list[TrioSubscriber], bytes] = (-1, [], b"")
+        """The routes' version, this key's local subscribers then, and their tag."""
         self.sent = 0
         self.faults = faults.injector(topic, tag) if faults is not None else None
         """Injected drops and delays (tests and the chaos harness only; :mod:`.faults`)."""
@@ -407,23 +408,26 @@ class Publisher:
             raise TypeError(f"{self.key} carries {self.msg_type.__name__}, "
                             f"not {type(msg).__name__}")
         self.sent += 1
+        payload = encode(msg)
         if self.faults is None:
-            self._send(encode(msg))
+            self._send(payload)
             return True
-        return self.faults.put(self._send, encode(msg))   # lost or late for everyone
+        return self.faults.put(self._send, payload)   # lost or late for everyone
 
     def _send(self, payload: bytes) -> None:
         """Hand ``payload`` to the subscribers of this session, then put it on Zenoh for every
         other subscriber, tagged so that this session's own drop their second copy."""
-        version, local = self._local
+        version, local, tag = self._local
         if version != self._routes.version:
-            version, local = self._local = self._routes.matching(self.key)
+            version, local = self._routes.matching(self.key)
+            tag = self._routes.tag(version)
+            self._local = (version, local, tag)
         if not local:
             self._pub.put(payload)
             return
         for sub in local:
             sub.deliver(self.key, payload)
-        self._pub.put(payload, attachment=self._routes.tag(version))
+        self._pub.put(payload, attachment=tag)
 
     @property
     def matched(self) -> bool:

@@ -17,6 +17,8 @@ import argparse
 import os
 import signal
 import sys
+from collections.abc import Awaitable, Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -178,6 +180,20 @@ async def _router(cfg: zenoh.Config) -> int:
     return 0
 
 
+async def _announced(command: Callable[..., Awaitable[Any]], line: str) -> Any:
+    """Run ``command(task_status=...)`` to its end, printing ``line`` on stderr once it says
+    it is subscribed (what is published from then on reaches it); its result."""
+    result: list[Any] = []
+
+    async def run(task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED) -> None:
+        result.append(await command(task_status=task_status))
+
+    async with trio.open_nursery() as nursery:
+        await nursery.start(run)
+        print(line, file=sys.stderr, flush=True)
+    return result[0]
+
+
 async def _record(cfg: zenoh.Config, args: argparse.Namespace) -> int:
     from .recorder import record
 
@@ -189,20 +205,10 @@ async def _record(cfg: zenoh.Config, args: argparse.Namespace) -> int:
                 await trio.sleep(args.duration)
                 stop.set()
             nursery.start_soon(timer)
-        done: list[Any] = []
-
-        async def recording(task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED
-                            ) -> None:
-            done.append(await record(
-                cfg, args.run, args.out, stop, task_status=task_status,
-                scene_hz=None if args.no_scene else max(args.scene_hz, 0.0)))
-
-        async with trio.open_nursery() as inner:
-            await inner.start(recording)
-            # Subscribed from here on: what is published now is recorded.
-            print(f"qlap record: recording {args.run or 'every run'} to {args.out}; "
-                  "Ctrl-C to stop", file=sys.stderr, flush=True)
-        summary = done[0]
+        summary = await _announced(
+            partial(record, cfg, args.run, args.out, stop,
+                    scene_hz=None if args.no_scene else max(args.scene_hz, 0.0)),
+            f"qlap record: recording {args.run or 'every run'} to {args.out}; Ctrl-C to stop")
         nursery.cancel_scope.cancel()
     print(f"qlap record: {summary.messages} messages on {len(summary.by_topic)} topics and "
           f"{summary.scenes} scene updates of {len(summary.runs)} run(s) to {summary.path} "
@@ -217,15 +223,8 @@ async def _echo(cfg: zenoh.Config, args: argparse.Namespace) -> int:
     async with trio.open_nursery() as nursery:
         await nursery.start(_until_signal, stop)
 
-        async def echoing(task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED
-                          ) -> None:
-            await echo(cfg, args.key, stop, raw=args.raw, limit=args.count,
-                       task_status=task_status)
-
-        async with trio.open_nursery() as inner:
-            await inner.start(echoing)
-            print(f"qlap echo: printing {args.key}; Ctrl-C to stop", file=sys.stderr,
-                  flush=True)
+        await _announced(partial(echo, cfg, args.key, stop, raw=args.raw, limit=args.count),
+                         f"qlap echo: printing {args.key}; Ctrl-C to stop")
         nursery.cancel_scope.cancel()
     return 0
 

@@ -4,24 +4,17 @@ loop (or with a one-line error in bounded time; never a hang). Slow: ~40 s per t
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "chaos.py"
+from .test_lossy import load_chaos
 
 
 @pytest.mark.slow
 def test_three_chaos_trials_with_three_kills_end_as_the_sync_loop(capsys):
-    spec = importlib.util.spec_from_file_location("chaos", SCRIPT)
-    chaos = importlib.util.module_from_spec(spec)
-    sys.modules["chaos"] = chaos                # its dataclasses look their module up
-    spec.loader.exec_module(chaos)
-    code = chaos.main(["--trials", "3", "--kills", "3", "--steps", "3000", "--stall-s", "20",
-                       "--limit-s", "300"])
+    code = load_chaos().main(["--trials", "3", "--kills", "3", "--steps", "3000",
+                              "--stall-s", "20", "--limit-s", "300"])
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert code == 0
     assert summary["identical"] == 3 and summary["hung"] == 0
@@ -29,12 +22,9 @@ def test_three_chaos_trials_with_three_kills_end_as_the_sync_loop(capsys):
 
 @pytest.mark.slow
 def test_three_chaos_trials_with_kills_drops_and_delays_end_as_the_sync_loop(capsys):
-    spec = importlib.util.spec_from_file_location("chaos", SCRIPT)
-    chaos = importlib.util.module_from_spec(spec)
-    sys.modules["chaos"] = chaos                # its dataclasses look their module up
-    spec.loader.exec_module(chaos)
-    code = chaos.main(["--trials", "3", "--kills", "3", "--steps", "3000", "--stall-s", "20",
-                       "--limit-s", "300", "--drop", "0.01", "--delay", "0.01"])
+    code = load_chaos().main(["--trials", "3", "--kills", "3", "--steps", "3000",
+                              "--stall-s", "20", "--limit-s", "300", "--drop", "0.01",
+                              "--delay", "0.01"])
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert code == 0
     assert summary["identical"] == 3 and summary["hung"] == 0

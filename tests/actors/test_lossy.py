@@ -32,30 +32,33 @@ def _injected(summary: dict) -> dict[str, int]:
     return out
 
 
+def _lossy_run(tmp_path: Path, run_id: str, faults: Faults) -> tuple[dict[str, int], str, str]:
+    """An embedded run of BASE (seed 7) with ``faults``: what was injected, its knowledge and
+    the synchronous loop's."""
+    ctx = context(tmp_path, BASE, 7, run_id).with_(faults=faults.to_json(), stall_s=20)
+    summary = run_embedded(ctx)
+    return (_injected(summary), (tmp_path / "knowledge.json").read_text(),
+            sync_knowledge(BASE, seed=7))
+
+
 def test_lost_and_late_chain_messages_are_fetched_again(tmp_path):
     """Every lockstep topic loses 0.5 % and delays 0.5 % of its messages by 0.2 s (embedded,
     3,000 steps): the knowledge is the synchronous loop's. Without the refills the first loss
     stalls the run (the watchdog's RunStalled after 20 s)."""
-    expected = sync_knowledge(BASE, seed=7)
-    faults = Faults(drop=0.005, delay=0.005, seed=3).to_json()
-    ctx = context(tmp_path, BASE, 7, "t-lossy-chain").with_(faults=faults, stall_s=20)
-    summary = run_embedded(ctx)
-    injected = _injected(summary)
+    injected, knowledge, expected = _lossy_run(tmp_path, "t-lossy-chain",
+                                               Faults(drop=0.005, delay=0.005, seed=3))
     assert injected["dropped"] >= 10 and injected["delayed"] >= 10, injected
-    assert (tmp_path / "knowledge.json").read_text() == expected
+    assert knowledge == expected
 
 
 def test_lost_deltas_and_batch_contexts_are_fetched_again(tmp_path):
     """Half of the deltas and batch contexts lost, a quarter late (embedded): consumers
     waiting for a due delta, and batch actors for the executor's context, ask again."""
-    expected = sync_knowledge(BASE, seed=7)
-    faults = Faults(drop=0.5, delay=0.25, topics=("delta/dbn", "delta/landmarks", "batchctx"),
-                    seed=1).to_json()
-    ctx = context(tmp_path, BASE, 7, "t-lossy-deltas").with_(faults=faults, stall_s=20)
-    summary = run_embedded(ctx)
-    injected = _injected(summary)
+    injected, knowledge, expected = _lossy_run(
+        tmp_path, "t-lossy-deltas",
+        Faults(drop=0.5, delay=0.25, topics=("delta/dbn", "delta/landmarks", "batchctx"), seed=1))
     assert injected["dropped"] >= 3 and injected["delayed"] >= 1, injected
-    assert (tmp_path / "knowledge.json").read_text() == expected
+    assert knowledge == expected
 
 
 def test_a_message_lost_for_good_ends_with_one_line_naming_the_wait(tmp_path):
@@ -86,7 +89,8 @@ def test_a_malformed_fault_plan_is_one_line():
     assert plan.injector("motor") is not None
 
 
-def _chaos():
+def load_chaos():
+    """scripts/chaos.py as a module (also for tests/actors/test_chaos.py)."""
     spec = importlib.util.spec_from_file_location("chaos", SCRIPT)
     chaos = importlib.util.module_from_spec(spec)
     sys.modules["chaos"] = chaos                # its dataclasses look their module up
@@ -97,7 +101,7 @@ def _chaos():
 def test_one_chaos_trial_with_kills_drops_and_delays_ends_as_the_sync_loop(capsys):
     """The fast variant of scripts/chaos.py: processes, 3,000 steps, two SIGKILLs and 0.5 %
     of the lockstep messages dropped and 0.5 % delayed (the full one is under ``-m slow``)."""
-    code = _chaos().main(["--trials", "1", "--kills", "2", "--steps", "3000", "--stall-s", "20",
+    code = load_chaos().main(["--trials", "1", "--kills", "2", "--steps", "3000", "--stall-s", "20",
                           "--limit-s", "240", "--drop", "0.005", "--delay", "0.005"])
     lines = capsys.readouterr().out.strip().splitlines()
     summary = json.loads(lines[-1])
