@@ -33,9 +33,9 @@ from .actions import (
 from .babble import Babbler
 from .curiosity import (
     IACChoice,
+    action_weight,
     choose_action,
     choose_plan,
-    fallback_weight,
     iac_weight,
     plan_weight,
 )
@@ -669,9 +669,7 @@ class Agent:
                          if usable[r]]
                 w_plans, excluded, rel_os = self._plan_weights(plans, q_list)
                 idx = choose_plan(w_plans, excluded, self.rng, self.params.plan_epsilon)
-                # action_weight in the eq. 6.2 regime (iac_weight is None here)
-                w = 0.0 if idx is None else \
-                    fallback_weight(stats.rel(self.params.prior), rel_os[idx])
+                w = action_weight(stats, None if idx is None else rel_os[idx], self.params)
             out.append(key)
             weights.append(w)
         return out, weights
@@ -719,16 +717,14 @@ class Agent:
         cache[key] = (stats, stats.history, stats.calls, len(stats.history), w)
         return w
 
-    def _usable_plans(self, key: ActionKey, p: Percept, plans: list[Plan],
-                      q_list: list[int] | None = None) -> list[Plan]:
+    def _usable_plans(self, key: ActionKey, p: Percept, plans: list[Plan]) -> list[Plan]:
         """Plans of a(v, q) usable in this state: none on a discontinuity step (the agent's
         state is not fully known: no direction of change has a value, so the plans a call
         leads to cannot run; docs/decisions.md 39), else those whose state is known (no plan
-        variable without a value) and magnitude plans from the current side. ``q_list`` is
-        ``p.q.tolist()`` when the caller has it."""
+        variable without a value) and magnitude plans from the current side."""
         if p.discontinuity:
             return []        # the state is not fully known (no direction of change is defined)
-        full = p.q.tolist() if q_list is None else q_list
+        full = p.q.tolist()
         known = sorted((pl for pl in plans
                         if pl.space is not None and pl.space.index_from_full(full) is not None),
                        key=lambda pl: pl.id)
@@ -753,11 +749,6 @@ class Agent:
             cell = cell * sizes[v] + q
         return cell
 
-    def _state_cell(self, ctx: tuple[int, ...], q: np.ndarray | list[int]) -> int:
-        """Mixed-radix cell of the current qualitative values of ``ctx`` (−1 if unavailable);
-        ``q`` by variable, an array or (faster) its ``tolist()``."""
-        return _cell_of(ctx, q, self.learner.perception.events.sizes)
-
     def _pick_plan(self, plans: list[Plan], p: Percept,
                    q_list: list[int] | None = None) -> int | None:
         """§6.1.2: ε-greedy on w = rel(r, s)·rel(o, s); plans whose antecedent action is in
@@ -779,9 +770,10 @@ class Agent:
             ante = dbn.antecedent
             excluded.append((ante.var, ante.value) in in_list)
             cell = _cell_of(dbn.context, q, sizes)
-            rels = dbn.cell_reliabilities(prior)
-            rel_rs = rels[cell] if 0 <= cell < len(rels) else \
-                (0.0 + prior) / (0.0 + 0.0 + 2 * prior)    # a cell with no counts
+            # rel(r, s) of the one cell (eq. B.1); a cell without counts (−1) has none
+            sc, fc = (float(dbn.cpt_s[cell]), float(dbn.cpt_f[cell])) \
+                if 0 <= cell < len(dbn.cpt_s) else (0.0, 0.0)
+            rel_rs = (sc + prior) / (sc + fc + 2 * prior)
             rel_os.append(plan.rel_state(_cell_of(plan.context_o, q, sizes)))
             w.append(plan_weight(rel_rs, rel_os[-1]))
         return w, excluded, rel_os

@@ -30,6 +30,7 @@ import shutil
 import tempfile
 import zipfile
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -286,13 +287,20 @@ def read_checkpoint(directory: str | Path, name: str = "learner"
         raise CheckpointError(f"{jpath}: {FORMAT} version {meta.get('version')!r} is not "
                               f"supported (this build reads versions "
                               f"{', '.join(map(str, READABLE_VERSIONS))})")
+    arrays = _read_arrays(npath, lambda a: _unpack_rows(_ungroup(a)))
+    return meta, arrays
+
+
+def _read_arrays(npath: Path, then: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]]
+                 = lambda a: a) -> dict[str, np.ndarray]:
+    """The arrays of a checkpoint's ``.npz`` (passed through ``then``); a missing or corrupt
+    file is a :class:`CheckpointError` naming it."""
     try:
-        arrays = _unpack_rows(_ungroup(_read_npz(npath)))
+        return then(_read_npz(npath))
     except FileNotFoundError:
         raise CheckpointError(f"{npath}: no such checkpoint file") from None
     except Exception as exc:  # zipfile/np errors on corrupt data
         raise CheckpointError(f"{npath}: corrupt array file ({exc})") from None
-    return meta, arrays
 
 
 def save_statistics(learner: ModelLearner, directory: str | Path) -> Path:
@@ -324,12 +332,7 @@ def _merge_statistics(directory: Path, meta: dict[str, Any],
     if stats.get("step") != meta.get("step"):
         raise CheckpointError(f"{jpath}: statistics of step {stats.get('step')!r}, the "
                               f"learner's step is {meta.get('step')!r}")
-    try:
-        extra = _read_npz(npath)
-    except FileNotFoundError:
-        raise CheckpointError(f"{npath}: no such checkpoint file") from None
-    except Exception as exc:  # zipfile/np errors on corrupt data
-        raise CheckpointError(f"{npath}: corrupt array file ({exc})") from None
+    extra = _read_arrays(npath)
     for key in [k for k in arrays if k.startswith("pairs.")]:
         del arrays[key]
     arrays.update(extra)

@@ -577,17 +577,19 @@ class ModelLearner:
                 continue
             X, ok = dbn.stored()
             # App. D.2: a motor only as the DBN's antecedent, a magnitude only if it is not
-            # (the loop below skips the others): only these columns are bounded.
+            # (D.1: no motor in a context): only these columns are bounded; the others keep
+            # a bound of −inf, so no landmark is sought on them.
             rel = np.flatnonzero(is_motor == (cols == dbn.antecedent.var))
+            used = cols[rel]
             Q = np.full(X.shape, -1, dtype=np.int64)              # only the columns used
-            Q[:, cols[rel]] = self.perception.quantize_columns(X, cols[rel])
+            Q[:, used] = self.perception.quantize_columns(X, used)
             cq = None
             if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
                 cq = self.perception.quantize_columns(X, dbn.context)[:, 0]
             # Blocks whose gain bound cannot pass eq. 4.17 are skipped: best_cut there could
             # only give a cut that is_candidate rejects (cut_gain_bounds is column by column,
             # so the columns bounded give the bounds they have among all columns).
-            sub, labels = cut_gain_bounds(X[:, cols[rel]], ok, Q[:, cols[rel]], n_values, cq)
+            sub, labels = cut_gain_bounds(X[:, used], ok, Q[:, used], n_values, cq)
             bound = np.full((len(cols), *sub.shape[1:]), -np.inf)
             bound[rel] = sub
             with np.errstate(invalid="ignore"):
@@ -601,9 +603,6 @@ class ModelLearner:
             for i, q, gi in np.argwhere(passing).tolist():
                 v = real_vars[i]
                 var = v.index
-                if (var == dbn.antecedent.var) != (v.kind is Kind.MOTOR):
-                    continue            # App. D.2: an antecedent's variable only if a motor;
-                                        # a motor only as the antecedent (D.1: no motor context)
                 col = X[:, var]
                 space = spaces[var]
                 in_q = Q[:, var] == q
