@@ -202,3 +202,111 @@ class StoredActivations:
         cells = (lo[kv].T * so + np.maximum(Qo, 0)) * phi[kv] + hi[kv].T
         good = ~(bad[:, None] | (Qo < 0))
         return cells, good, phi[0] * so
+
+
+ContextProblem = tuple[tuple[int, ...], Sequence[int], np.ndarray, np.ndarray]
+"""One Algorithm 3 search: ``(current context, candidates, Q, ok)`` (Q and ok as for
+:class:`StoredActivations`)."""
+
+
+def update_contexts_many(problems: Sequence[ContextProblem], sizes,
+                         params: Params) -> list[tuple[int, ...] | None]:
+    """:func:`update_context` with :meth:`StoredActivations.choose` for every problem, the
+    same answers, with each round's counting done for all problems at once (Algorithm 3 on
+    all of a batch's DBNs, §4.2.1, App. D.1: one DBN's arrays are too small for numpy's
+    per-call overhead to pay off).
+
+    Each problem's round counts its rows in its own bins of one ``bincount`` (the same sums
+    of the same weights in the same order as its own call), the entropies and reliabilities
+    are the same element-wise operations, and each problem's choice and statistics are
+    then made from its own slice of the counts exactly as :meth:`StoredActivations.choose`
+    makes them.
+    """
+    p = params
+    acts = [StoredActivations(Q, ok, sizes, p) for _, _, Q, ok in problems]
+    scores: list[dict[tuple[int, ...], ModelStats]] = []
+    r1: list[ModelStats] = []
+    for a in acts:                                  # the empty context: one cell
+        r = a.evaluate(())
+        scores.append({(): r})
+        r1.append(r)
+    ctx: list[tuple[int, ...]] = [() for _ in problems]
+    active = list(range(len(problems))) if p.max_context_vars > 0 else []
+    while active:
+        rounds: list[tuple[int, np.ndarray, bool, np.ndarray, np.ndarray, np.ndarray]] = []
+        for i in active:
+            options = [v for v in problems[i][1] if v not in ctx[i]]
+            if not options:
+                continue
+            a = acts[i]
+            opts = np.asarray(options, dtype=np.int64)
+            Qo = a.Q[:, opts]
+            so = a.sizes[opts]
+            if ctx[i]:
+                cells, good, n_cells = a._cells_with(ctx[i], opts, Qo, so)
+            else:
+                cells, good, n_cells = Qo, Qo >= 0, so
+            rounds.append((i, opts, r1[i].reliable or p.ablations.entropy_only, cells, good,
+                           n_cells))
+        if not rounds:
+            break
+        # One bincount for all: problem i's segments (one per option) start at base[i].
+        seg_n = np.concatenate([r[5] for r in rounds])
+        offs = np.zeros(len(seg_n), dtype=np.int64)
+        np.cumsum(seg_n[:-1], out=offs[1:])
+        first_seg = np.zeros(len(rounds), dtype=np.int64)
+        np.cumsum([len(r[1]) for r in rounds[:-1]], out=first_seg[1:])
+        idx_parts, w_parts = [], []
+        for (i, _, _, cells, good, _), s0 in zip(rounds, first_seg.tolist(), strict=True):
+            k = cells.shape[1]
+            idx_parts.append((cells + offs[s0:s0 + k])[good])
+            w_parts.append(np.broadcast_to(acts[i].okf[:, None], cells.shape)[good])
+        total = int(seg_n.sum())
+        idx = np.concatenate(idx_parts)
+        s = np.bincount(idx, weights=np.concatenate(w_parts), minlength=total)
+        f = np.bincount(idx, minlength=total).astype(float) - s
+        ent = [r[2] for r in rounds]
+        if any(ent):
+            tot = s + f
+            seg_tot = np.add.reduceat(tot, offs)
+            pe = (s + p.prior) / (tot + 2.0 * p.prior)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                terms = binary_entropy_array(pe) * (tot / np.repeat(seg_tot, seg_n))
+            approx = np.where(seg_tot > 0, np.add.reduceat(np.nan_to_num(terms), offs), 1.0)
+        if not all(ent):
+            rel = (s + p.prior) / (s + f + 2.0 * p.prior)
+            rel = np.where(s >= p.brel_min_successes, rel, -1.0)
+            seg_max = np.maximum.reduceat(rel, offs)
+        still = []
+        for (i, opts, by_entropy, _, _, _), s0 in zip(rounds, first_seg.tolist(), strict=True):
+            k = len(opts)
+            o = offs[s0:s0 + k]
+            n_cells = seg_n[s0:s0 + k]
+            if by_entropy:
+                ap = approx[s0:s0 + k]
+                short = np.flatnonzero(ap <= ap.min() + _TOL)
+                j = min((dbn_entropy(s[o[j]:o[j] + n_cells[j]], f[o[j]:o[j] + n_cells[j]],
+                                     p.prior), int(opts[j]), j) for j in short.tolist())[2]
+            else:
+                j = int(np.lexsort((opts, -seg_max[s0:s0 + k]))[0])
+            a0, b0 = int(o[j]), int(o[j] + n_cells[j])
+            v = int(opts[j])
+            r2 = model_stats(s[a0:b0], f[a0:b0], len(ctx[i]) + 1, p)
+            new_ctx = tuple(sorted((*ctx[i], v)))
+            scores[i].setdefault(new_ctx, r2)
+            if not is_model_improvement(r1[i], r2, p):
+                continue
+            ctx[i], r1[i] = new_ctx, r2
+            if len(new_ctx) < p.max_context_vars:
+                still.append(i)
+        active = still
+    out: list[tuple[int, ...] | None] = []
+    for i, (current, _, _, _) in enumerate(problems):
+        if tuple(sorted(current)) == ctx[i]:
+            out.append(None)
+            continue
+        r = scores[i].get(tuple(current))
+        if r is None:
+            r = acts[i].evaluate(tuple(current))
+        out.append(ctx[i] if is_model_improvement(r, r1[i], p) else None)
+    return out

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .context import StoredActivations, is_model_improvement, update_context
+from .context import is_model_improvement, update_contexts_many
 from .contingency import PairStatistics, WindowLearner
 from .dbn import CHANGE, DBN, MAGNITUDE, ModelStats, context_cells, counts_by_cell, model_stats
 from .delta import (
@@ -463,6 +463,7 @@ class ModelLearner:
 
     def _update_contexts(self) -> None:
         signature = self.perception.landmark_signature
+        searched: list[tuple[int, tuple, list[int], np.ndarray, np.ndarray]] = []
         for dbn_id in sorted(self.dbns):
             dbn = self.dbns[dbn_id]
             if dbn.act_n < 1:
@@ -476,14 +477,31 @@ class ModelLearner:
             if dbn.context_unchanged == key:
                 continue
             X, ok = dbn.stored()
-            acts = StoredActivations.quantized(X, ok, self.perception.quantize_columns,
-                                               (*cands, *dbn.context),
-                                               self.perception.events.sizes, self.params)
-            new = update_context(dbn.context, cands, acts.evaluate, self.params, acts.choose)
+            searched.append((dbn_id, key, cands, X, ok))
+        if not searched:
+            return
+        # The searches are independent (a new context changes its DBN alone): all DBNs'
+        # activations are quantized in one call and searched together (update_contexts_many,
+        # the answers of update_context one by one), then applied in order of id.
+        sizes = self.perception.events.sizes
+        cols = np.asarray(sorted({v for _, _, cands, _, _ in searched for v in cands}
+                                 | {v for d_id, *_ in searched for v in self.dbns[d_id].context}),
+                          dtype=np.int64)
+        X_all = np.concatenate([X for *_, X, _ in searched])
+        Q_all = np.full(X_all.shape, -1, dtype=np.int64)
+        if len(cols):
+            Q_all[:, cols] = self.perception.quantize_columns(X_all, cols)
+        problems = []
+        row = 0
+        for dbn_id, _, cands, X, ok in searched:
+            problems.append((self.dbns[dbn_id].context, cands, Q_all[row:row + len(X)], ok))
+            row += len(X)
+        answers = update_contexts_many(problems, sizes, self.params)
+        for (dbn_id, key, _, _, _), new in zip(searched, answers, strict=True):
             if new is not None:
                 self._do(SetContext(dbn_id, new))
             else:
-                dbn.context_unchanged = key
+                self.dbns[dbn_id].context_unchanged = key
 
     def _delete_dbns(self, step: int) -> None:
         """§6.2.3 (old, never deterministic, not a plan) and §6.2.1 item 4."""
