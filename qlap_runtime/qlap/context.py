@@ -119,6 +119,7 @@ class StoredActivations:
         variable, −1 where unknown or not needed); ``ok``: their success labels."""
         self.Q, self.ok = Q, ok
         self.okf = ok.astype(float)
+        self.ok_int = ok.astype(np.int64)
         self.sizes = np.asarray(sizes, dtype=np.int64)
         self.params = params
 
@@ -256,15 +257,16 @@ def update_contexts_many(problems: Sequence[ContextProblem], sizes,
         np.cumsum(seg_n[:-1], out=offs[1:])
         first_seg = np.zeros(len(rounds), dtype=np.int64)
         np.cumsum([len(r[1]) for r in rounds[:-1]], out=first_seg[1:])
-        idx_parts, w_parts = [], []
+        # Bin 2·cell + ok: the successes and failures of each cell as whole numbers, the
+        # values (as floats) of choose's weighted and unweighted bincounts and difference.
+        idx_parts = []
         for (i, _, _, cells, good, _), s0 in zip(rounds, first_seg.tolist(), strict=True):
             k = cells.shape[1]
-            idx_parts.append((cells + offs[s0:s0 + k])[good])
-            w_parts.append(np.broadcast_to(acts[i].okf[:, None], cells.shape)[good])
+            idx_parts.append(((cells + offs[s0:s0 + k]) * 2 + acts[i].ok_int[:, None])[good])
         total = int(seg_n.sum())
-        idx = np.concatenate(idx_parts)
-        s = np.bincount(idx, weights=np.concatenate(w_parts), minlength=total)
-        f = np.bincount(idx, minlength=total).astype(float) - s
+        counts = np.bincount(np.concatenate(idx_parts), minlength=2 * total)
+        s = counts[1::2].astype(float)
+        f = counts[0::2].astype(float)
         ent = [r[2] for r in rounds]
         if any(ent):
             tot = s + f

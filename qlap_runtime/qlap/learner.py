@@ -482,24 +482,26 @@ class ModelLearner:
             return
         # The searches are independent (a new context changes its DBN alone): all DBNs'
         # activations are quantized in one call and searched together (update_contexts_many,
-        # the answers of update_context one by one), then applied in order of id.
-        sizes = self.perception.events.sizes
-        cols = np.asarray(sorted({v for _, _, cands, _, _ in searched for v in cands}
-                                 | {v for d_id, *_ in searched for v in self.dbns[d_id].context}),
-                          dtype=np.int64)
-        X_all = np.concatenate([X for *_, X, _ in searched])
-        Q_all = np.full(X_all.shape, -1, dtype=np.int64)
-        if len(cols):
-            Q_all[:, cols] = self.perception.quantize_columns(X_all, cols)
+        # the answers of update_context one by one), then applied in order of id. Only the
+        # variables searched are quantized, as columns 0, 1, … in order of index (an
+        # increasing renumbering: the same ties, choices and statistics).
+        cols = sorted({v for _, _, cands, _, _ in searched for v in cands}
+                      | {v for d_id, *_ in searched for v in self.dbns[d_id].context})
+        at = {v: i for i, v in enumerate(cols)}
+        Q_all = self.perception.quantize_values(
+            np.concatenate([X[:, cols] for *_, X, _ in searched]), cols)
+        all_sizes = self.perception.events.sizes
+        sizes = [all_sizes[v] for v in cols]
         problems = []
         row = 0
         for dbn_id, _, cands, X, ok in searched:
-            problems.append((self.dbns[dbn_id].context, cands, Q_all[row:row + len(X)], ok))
+            problems.append((tuple(at[v] for v in self.dbns[dbn_id].context),
+                             [at[v] for v in cands], Q_all[row:row + len(X)], ok))
             row += len(X)
         answers = update_contexts_many(problems, sizes, self.params)
         for (dbn_id, key, _, _, _), new in zip(searched, answers, strict=True):
             if new is not None:
-                self._do(SetContext(dbn_id, new))
+                self._do(SetContext(dbn_id, tuple(cols[i] for i in new)))
             else:
                 self.dbns[dbn_id].context_unchanged = key
 

@@ -29,6 +29,10 @@ MAX_ABS_VALUE = 1e12
 an observation is rejected like a NaN (derivatives and landmarks would overflow)."""
 
 
+_BY_COLUMN_ROWS = 2000
+"""Rows from which :meth:`Perception.quantize_columns` searches column by column."""
+
+
 class InvalidObservation(ValueError):
     """An observation with a NaN/infinite or huge value (|x| > :data:`MAX_ABS_VALUE`), an
     unknown variable or a bad nominal value."""
@@ -253,14 +257,31 @@ class Perception:
         as :meth:`quantize_var` gives them column by column; shape (rows, len(cols))."""
         X = np.asarray(X, dtype=float)
         cols = np.asarray(cols, dtype=np.int64)
-        out = np.empty((X.shape[0], len(cols)), dtype=np.int64)
+        return self.quantize_values(X[:, cols], cols)
+
+    def quantize_values(self, Xc: np.ndarray, cols) -> np.ndarray:
+        """:meth:`quantize_columns` of a matrix whose column i holds values of variable
+        ``cols[i]`` (``X[:, cols]``): the same values."""
+        Xc = np.asarray(Xc, dtype=float)
+        cols = np.asarray(cols, dtype=np.int64)
+        out = np.empty((Xc.shape[0], len(cols)), dtype=np.int64)
         if not len(cols):
             return out
         pos = self._ordered_pos[cols]
         ordered = pos >= 0
-        if ordered.any():
+        if ordered.any() and Xc.shape[0] > _BY_COLUMN_ROWS:
+            # Many rows (a batch's activations at once): one binary search per column, j =
+            # #{ub < x} as below (the upper bounds increase), the same values.
+            for c in np.flatnonzero(ordered).tolist():
+                r = int(pos[c])
+                nl = int(self._nlm[r])
+                xo = Xc[:, c]
+                j = np.searchsorted(self._ub[r, :nl], xo, side="left")
+                at = (j < nl) & (xo >= self._lb[r, np.minimum(j, self._maxl - 1)])
+                out[:, c] = np.where(np.isnan(xo), -1, 2 * j + at)
+        elif ordered.any():
             ro = pos[ordered]
-            xo = X[:, cols[ordered]]
+            xo = Xc[:, ordered]
             nl = self._nlm[ro]
             ub = self._ub[ro]
             j = np.zeros(xo.shape, dtype=np.int64)
@@ -270,7 +291,7 @@ class Perception:
             at = (j < nl) & (xo >= lbj)
             out[:, ordered] = np.where(np.isnan(xo), -1, 2 * j + at)
         if not ordered.all():
-            xn = X[:, cols[~ordered]]
+            xn = Xc[:, ~ordered]
             out[:, ~ordered] = np.where(np.isnan(xn), -1, np.nan_to_num(xn, nan=-1))
         return out
 
