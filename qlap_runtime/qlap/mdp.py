@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from .kernels import kernels
 from .params import Params
 from .variables import Event
 
@@ -724,6 +725,12 @@ def _sweeps(q: np.ndarray, expected_r: np.ndarray, p1: np.ndarray, p2: np.ndarra
     rows = flat // n_a if n_a else flat
     starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if flat.size else flat
     live = rows[starts]
+    k = kernels()
+    if k is not None:                       # the same sweeps, compiled (kernels.vi_sweeps)
+        q_flat[flat] = k.vi_sweeps(q_app, er, a1, a2, n1, n2, starts, live, q.shape[0],
+                                   float(g), float(params.value_iteration_tol),
+                                   int(params.value_iteration_max_sweeps))
+        return q
     v = np.zeros(q.shape[0])
     t1, t2 = np.empty_like(er), np.empty_like(er)
     for _ in range(params.value_iteration_max_sweeps):
@@ -815,6 +822,10 @@ def dyna_sweep(q: np.ndarray, model: TransitionModel, params: Params) -> np.ndar
     # :meth:`TransitionModel.backup` on the applicable pairs only (the others are not used):
     # the same element-wise operations on the same values, about half the elements.
     flat, p1, p2, r1, r2, n1, n2 = _applicable_pairs(model, params)
+    k = kernels()
+    if k is not None and q.dtype == np.float64:   # the same sweep, compiled (kernels.dyna)
+        k.dyna(q, flat, p1, p2, r1, r2, n1, n2, float(params.gamma), float(a))
+        return q
     v = state_values(q)
     g = params.gamma
     target = p1 * (r1 + g * v[n1]) + p2 * (r2 + g * v[n2])
@@ -917,6 +928,13 @@ class SarsaLambda:
             self._check(s2, a2)
             target += p.gamma * float(self.q[s2, a2])
         delta = target - float(self.q[s, a])
+        k = kernels()
+        if k is not None and self.q.flags.c_contiguous and self.e.flags.c_contiguous \
+                and self.q.dtype == np.float64 and self.e.dtype == np.float64:
+            # The same update, compiled (kernels.sarsa): αδ and λγ as below.
+            k.sarsa(self.q, self.e, s, a, p.sarsa_alpha * delta, p.sarsa_lambda * p.gamma,
+                    a2 is None)
+            return delta
         self.e[s, a] = 1.0
         live = self.e > 0.0
         self.q[live] += p.sarsa_alpha * delta * self.e[live]

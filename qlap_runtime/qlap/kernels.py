@@ -1,0 +1,110 @@
+"""Compiled loops for the plans' value computations (§5.2.2: value iteration, Dyna, Sarsa(λ)).
+
+Each function here is the loop of a numpy computation in :mod:`.mdp`, written element by
+element with the same floating-point operations in the same order (products, sums, a maximum:
+no transcendental function, no reordered sum), so its results are bit for bit numpy's; the
+tests in ``tests/qlap/test_mdp.py`` pin each one against the numpy path. numpy's per-call
+overhead dominated these loops (value iteration runs ~130 sweeps over a few hundred pairs).
+
+They are compiled by numba on first use (:func:`kernels`, cached on disk), so importing the
+agent stays as fast as before; without numba (or with ``QLAP_NO_NUMBA=1``) the callers keep
+their numpy code.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from types import SimpleNamespace
+
+import numpy as np
+
+_compiled: SimpleNamespace | None = None
+_tried = False
+
+
+def kernels() -> SimpleNamespace | None:
+    """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``), or None without numba."""
+    global _compiled, _tried
+    if not _tried:
+        _tried = True
+        if os.environ.get("QLAP_NO_NUMBA"):
+            return None
+        try:
+            import numba
+        except ImportError:                               # pragma: no cover - a dependency
+            return None
+        jit = numba.njit(cache=True, fastmath=False, nogil=True)
+        _compiled = SimpleNamespace(vi_sweeps=jit(vi_sweeps), dyna=jit(dyna), sarsa=jit(sarsa))
+    return _compiled
+
+
+def vi_sweeps(q_app: np.ndarray, er: np.ndarray, a1: np.ndarray, a2: np.ndarray,
+              n1: np.ndarray, n2: np.ndarray, starts: np.ndarray, live: np.ndarray,
+              n_states: int, g: float, tol: float, max_sweeps: int) -> np.ndarray:
+    """The sweeps of :func:`~.mdp._sweeps` on the applicable pairs: V(s) = max over each
+    state's run of pairs (``starts``/``live``), then Q ← E[R] + γ(p1·V(s1) + p2·V(s2)) until
+    no value moves by ``tol``. Returns the final values of the pairs (``q_app`` may be
+    overwritten)."""
+    n = q_app.size
+    ns = starts.size
+    v = np.zeros(n_states)
+    new = np.empty(n)
+    for _ in range(max_sweeps):
+        for i in range(ns):
+            b = starts[i]
+            e = starts[i + 1] if i + 1 < ns else n
+            m = q_app[b]
+            for k in range(b + 1, e):
+                if q_app[k] > m:
+                    m = q_app[k]
+            v[live[i]] = m
+        delta = 0.0
+        for i in range(n):
+            x = er[i] + (a1[i] * v[n1[i]] + a2[i] * v[n2[i]]) * g
+            d = abs(x - q_app[i])
+            if d > delta:
+                delta = d
+            new[i] = x
+        q_app, new = new, q_app
+        if delta < tol:
+            break
+    return q_app
+
+
+def dyna(q: np.ndarray, flat: np.ndarray, p1: np.ndarray, p2: np.ndarray, r1: np.ndarray,
+         r2: np.ndarray, n1: np.ndarray, n2: np.ndarray, g: float, alpha: float) -> None:
+    """One synchronous Dyna sweep of :func:`~.mdp.dyna_sweep` on a C-contiguous Q-table, in
+    place: V(s) = max_a Q(s, a) (0 where nothing is applicable) from the table before the
+    sweep, then each applicable pair Q ← (1 − α)Q + α·(p1(r1 + γV(s1)) + p2(r2 + γV(s2)))."""
+    n_s, n_a = q.shape
+    v = np.zeros(n_s)
+    for s in range(n_s):
+        m = -math.inf
+        for a in range(n_a):
+            if q[s, a] > m:
+                m = q[s, a]
+        v[s] = m if math.isfinite(m) else 0.0
+    qf = q.reshape(-1)
+    keep = 1.0 - alpha
+    for i in range(flat.size):
+        j = flat[i]
+        target = p1[i] * (r1[i] + g * v[n1[i]]) + p2[i] * (r2[i] + g * v[n2[i]])
+        qf[j] = keep * qf[j] + alpha * target
+
+
+def sarsa(q: np.ndarray, e: np.ndarray, s: int, a: int, step: float, decay: float,
+          terminal: bool) -> None:
+    """The trace part of :meth:`~.mdp.SarsaLambda.update`: e(s, a) = 1, Q += step·e where
+    e > 0 (``step`` = αδ), then the traces cleared (terminal) or multiplied by ``decay``."""
+    e[s, a] = 1.0
+    qf = q.reshape(-1)
+    ef = e.reshape(-1)
+    for i in range(ef.size):
+        if ef[i] > 0.0:
+            qf[i] = qf[i] + step * ef[i]
+    if terminal:
+        ef[:] = 0.0
+    else:
+        for i in range(ef.size):
+            ef[i] = ef[i] * decay

@@ -1,0 +1,106 @@
+"""The compiled loops (kernels.py) give bit for bit the numbers of the numpy code they replace:
+value iteration, Dyna and Sarsa(λ) on random plans, and small cases by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qlap_runtime.qlap import mdp
+from qlap_runtime.qlap.kernels import kernels
+from qlap_runtime.qlap.mdp import (
+    NOT_APPLICABLE,
+    PlanSpec,
+    PlanStateSpace,
+    SarsaLambda,
+    TransitionModel,
+    build_actions,
+    dyna_sweep,
+    value_iteration,
+)
+from qlap_runtime.qlap.params import Params
+from qlap_runtime.qlap.variables import Event
+
+pytestmark = pytest.mark.skipif(kernels() is None, reason="numba is not installed")
+P = Params()
+C, X, Y, W = 0, 1, 2, 3
+
+
+def _random_model(rng: np.random.Generator) -> TransitionModel:
+    sizes = {W: int(rng.integers(1, 5)), C: int(rng.integers(1, 6)), X: 3, Y: 3}
+    spec = PlanSpec(goal=Event(Y, int(rng.integers(0, 3))), antecedent=Event(X, 1))
+    space = PlanStateSpace.from_groups([[W], [C], [X], [Y]], sizes)
+    actions = build_actions(space, spec)
+    rel_a = rng.uniform(0.0, 1.0, len(actions)).round(int(rng.integers(1, 4)))
+    rel_r = rng.uniform(0.0, 1.0, space.n_states).round(int(rng.integers(1, 4)))
+    regress = rng.random((space.n_states, len(actions))) < 0.1
+    return TransitionModel.build(space, actions, spec, rel_a, rel_r, regress)
+
+
+def _numpy(monkeypatch: pytest.MonkeyPatch, fn, *args):
+    """``fn(*args)`` with the numpy code (no kernels)."""
+    with monkeypatch.context() as m:
+        m.setattr(mdp, "kernels", lambda: None)
+        return fn(*args)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_value_iteration_compiled_is_the_numpy_one(seed: int,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(seed)
+    model = _random_model(rng)
+    for params in (P, P.replace(value_iteration_max_sweeps=2), P.replace(gamma=0.99)):
+        got = value_iteration(model, params)
+        want = _numpy(monkeypatch, value_iteration, model, params)
+        assert got.tobytes() == want.tobytes()
+
+
+def test_value_iteration_compiled_by_hand() -> None:
+    # One state, one action that reaches the goal with p1 = 0.5: E[R] = 0.5·8 + 0.5·(−2) = 3,
+    # its next states are terminal (V = 0) and itself; sweeps: 3, 3 + 0.9·0.5·3 = 4.35, …
+    k = kernels()
+    assert k is not None
+    q = k.vi_sweeps(np.zeros(1), np.array([3.0]), np.array([0.5]), np.array([0.5]),
+                    np.array([1]), np.array([0]), np.array([0]), np.array([0]), 2, 0.9,
+                    1e-6, 2)
+    assert q.tolist() == [3.0 + 0.9 * 0.5 * 3.0]
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_dyna_and_sarsa_compiled_are_the_numpy_ones(seed: int,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(100 + seed)
+    model = _random_model(rng)
+    q0 = np.where(model.applicable, rng.normal(0.0, 3.0, model.applicable.shape),
+                  NOT_APPLICABLE)
+    got, want = q0.copy(), q0.copy()
+    for _ in range(3):
+        dyna_sweep(got, model, P)
+        _numpy(monkeypatch, dyna_sweep, want, model, P)
+        assert got.tobytes() == want.tobytes()
+    pairs = np.argwhere(model.applicable)
+    if not len(pairs):
+        return
+    sg, sw = SarsaLambda(got, P), SarsaLambda(want, P)
+    for _ in range(12):
+        s, a = pairs[int(rng.integers(len(pairs)))].tolist()
+        s2, a2 = pairs[int(rng.integers(len(pairs)))].tolist()
+        nxt = None if rng.random() < 0.3 else a2
+        r = float(rng.normal())
+        d1 = sg.update(s, a, r, s2, nxt)
+        d2 = _numpy(monkeypatch, sw.update, s, a, r, s2, nxt)
+        assert d1 == d2
+        assert got.tobytes() == want.tobytes() and sg.e.tobytes() == sw.e.tobytes()
+
+
+def test_sarsa_compiled_by_hand() -> None:
+    # Traces 0.5 and 0 on two pairs: e(0, 1) = 1, Q += 0.1·e where e > 0, then e·0.81.
+    k = kernels()
+    assert k is not None
+    q = np.array([[1.0, 2.0, 3.0]])
+    e = np.array([[0.5, 0.0, 0.0]])
+    k.sarsa(q, e, 0, 1, 0.1, 0.81, False)
+    assert q.tolist() == [[1.05, 2.1, 3.0]]
+    assert e.tolist() == [[0.5 * 0.81, 0.81, 0.0]]
+    k.sarsa(q, e, 0, 2, 1.0, 0.81, True)
+    assert e.tolist() == [[0.0, 0.0, 0.0]]
