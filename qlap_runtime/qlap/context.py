@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from .dbn import ModelStats, context_cells, counts_by_cell, model_stats
+from .kernels import kernels
 from .params import Params
 from .probability import binary_entropy_array, dbn_entropy
 
@@ -233,40 +234,63 @@ def update_contexts_many(problems: Sequence[ContextProblem], sizes,
         r1.append(r)
     ctx: list[tuple[int, ...]] = [() for _ in problems]
     active = list(range(len(problems))) if p.max_context_vars > 0 else []
+    kern = kernels() if problems else None
+    if kern is not None:
+        # The compiled count (kernels.context_counts) reads all problems' rows at once.
+        Q_all = np.ascontiguousarray(np.concatenate([a.Q for a in acts]), dtype=np.int64)
+        ok_all = np.concatenate([a.ok_int for a in acts])
+        row_ptr = np.zeros(len(acts) + 1, dtype=np.int64)
+        np.cumsum([len(a.ok) for a in acts], out=row_ptr[1:])
+        size_arr = np.asarray(sizes, dtype=np.int64)
     while active:
-        rounds: list[tuple[int, np.ndarray, bool, np.ndarray, np.ndarray, np.ndarray]] = []
+        rounds: list[tuple[int, np.ndarray, bool]] = []
         for i in active:
             options = [v for v in problems[i][1] if v not in ctx[i]]
-            if not options:
-                continue
-            a = acts[i]
-            opts = np.asarray(options, dtype=np.int64)
-            Qo = a.Q[:, opts]
-            so = a.sizes[opts]
-            if ctx[i]:
-                cells, good, n_cells = a._cells_with(ctx[i], opts, Qo, so)
-            else:
-                cells, good, n_cells = Qo, Qo >= 0, so
-            rounds.append((i, opts, r1[i].reliable or p.ablations.entropy_only, cells, good,
-                           n_cells))
+            if options:
+                rounds.append((i, np.asarray(options, dtype=np.int64),
+                               r1[i].reliable or p.ablations.entropy_only))
         if not rounds:
             break
-        # One bincount for all: problem i's segments (one per option) start at base[i].
-        seg_n = np.concatenate([r[5] for r in rounds])
+        # Each option's segment of cells (as many as the values of its context), problem
+        # after problem: one count for all.
+        seg_n = np.concatenate([acts[i].sizes[opts] * (int(np.prod(acts[i].sizes[list(
+            ctx[i])])) if ctx[i] else 1) for i, opts, _ in rounds])
         offs = np.zeros(len(seg_n), dtype=np.int64)
         np.cumsum(seg_n[:-1], out=offs[1:])
         first_seg = np.zeros(len(rounds), dtype=np.int64)
         np.cumsum([len(r[1]) for r in rounds[:-1]], out=first_seg[1:])
-        # Bin 2·cell + ok: the successes and failures of each cell as whole numbers, the
-        # values (as floats) of choose's weighted and unweighted bincounts and difference.
-        idx_parts = []
-        for (i, _, _, cells, good, _), s0 in zip(rounds, first_seg.tolist(), strict=True):
-            k = cells.shape[1]
-            idx_parts.append(((cells + offs[s0:s0 + k]) * 2 + acts[i].ok_int[:, None])[good])
         total = int(seg_n.sum())
-        counts = np.bincount(np.concatenate(idx_parts), minlength=2 * total)
-        s = counts[1::2].astype(float)
-        f = counts[0::2].astype(float)
+        if kern is not None:
+            sel = np.array([i for i, _, _ in rounds], dtype=np.int64)
+            opt_ptr = np.zeros(len(rounds) + 1, dtype=np.int64)
+            opt_ptr[1:] = [*first_seg[1:].tolist(), len(seg_n)]
+            ctx_lists = [ctx[i] for i, _, _ in rounds]
+            ctx_ptr = np.zeros(len(rounds) + 1, dtype=np.int64)
+            np.cumsum([len(c) for c in ctx_lists], out=ctx_ptr[1:])
+            sc, fc = kern.context_counts(
+                Q_all, ok_all, row_ptr[sel], row_ptr[sel + 1],
+                np.concatenate([o for _, o, _ in rounds]), opt_ptr, offs,
+                np.asarray([v for c in ctx_lists for v in c], dtype=np.int64), ctx_ptr,
+                size_arr, total)
+            s = sc.astype(float)
+            f = fc.astype(float)
+        else:
+            # Bin 2·cell + ok: the successes and failures of each cell as whole numbers, the
+            # values (as floats) of choose's weighted and unweighted bincounts and difference.
+            idx_parts = []
+            for (i, opts, _), s0 in zip(rounds, first_seg.tolist(), strict=True):
+                a = acts[i]
+                Qo = a.Q[:, opts]
+                so = a.sizes[opts]
+                if ctx[i]:
+                    cells, good, _ = a._cells_with(ctx[i], opts, Qo, so)
+                else:
+                    cells, good = Qo, Qo >= 0
+                idx_parts.append(((cells + offs[s0:s0 + len(opts)]) * 2
+                                  + a.ok_int[:, None])[good])
+            counts = np.bincount(np.concatenate(idx_parts), minlength=2 * total)
+            s = counts[1::2].astype(float)
+            f = counts[0::2].astype(float)
         ent = [r[2] for r in rounds]
         if any(ent):
             tot = s + f
@@ -280,7 +304,7 @@ def update_contexts_many(problems: Sequence[ContextProblem], sizes,
             rel = np.where(s >= p.brel_min_successes, rel, -1.0)
             seg_max = np.maximum.reduceat(rel, offs)
         still = []
-        for (i, opts, by_entropy, _, _, _), s0 in zip(rounds, first_seg.tolist(), strict=True):
+        for (i, opts, by_entropy), s0 in zip(rounds, first_seg.tolist(), strict=True):
             k = len(opts)
             o = offs[s0:s0 + k]
             n_cells = seg_n[s0:s0 + k]

@@ -24,7 +24,8 @@ _tried = False
 
 
 def kernels() -> SimpleNamespace | None:
-    """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``), or None without numba."""
+    """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``, ``context_counts``), or
+    None without numba."""
     global _compiled, _tried
     if not _tried:
         _tried = True
@@ -35,7 +36,8 @@ def kernels() -> SimpleNamespace | None:
         except ImportError:                               # pragma: no cover - a dependency
             return None
         jit = numba.njit(cache=True, fastmath=False, nogil=True)
-        _compiled = SimpleNamespace(vi_sweeps=jit(vi_sweeps), dyna=jit(dyna), sarsa=jit(sarsa))
+        _compiled = SimpleNamespace(vi_sweeps=jit(vi_sweeps), dyna=jit(dyna), sarsa=jit(sarsa),
+                                    context_counts=jit(context_counts))
     return _compiled
 
 
@@ -108,3 +110,54 @@ def sarsa(q: np.ndarray, e: np.ndarray, s: int, a: int, step: float, decay: floa
     else:
         for i in range(ef.size):
             ef[i] = ef[i] * decay
+
+
+def context_counts(Q: np.ndarray, ok: np.ndarray, row_lo: np.ndarray, row_hi: np.ndarray,
+                   opts: np.ndarray,
+                   opt_ptr: np.ndarray, seg_off: np.ndarray, ctx: np.ndarray,
+                   ctx_ptr: np.ndarray, sizes: np.ndarray, total: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One round of Algorithm 3 for many searches: per search i (rows ``row_lo[i]`` to
+    ``row_hi[i]`` of ``Q``), option ``opts[j]`` (j from ``opt_ptr[i]`` to ``opt_ptr[i + 1]``)
+    and row, the row's cell of the context
+    sorted(ctx_i ∪ {v}) (mixed radix in order of variable; skipped where a value is unknown)
+    is counted as a success or failure in bin ``seg_off[j] + cell``. Whole numbers: the
+    counts of :meth:`~.context.StoredActivations.choose`'s bincounts."""
+    succ = np.zeros(total, dtype=np.int64)
+    fail = np.zeros(total, dtype=np.int64)
+    n_search = row_lo.size
+    for i in range(n_search):
+        c0, c1 = ctx_ptr[i], ctx_ptr[i + 1]
+        for j in range(opt_ptr[i], opt_ptr[i + 1]):
+            v = opts[j]
+            base = seg_off[j]
+            for r in range(row_lo[i], row_hi[i]):
+                cell = 0
+                placed = False
+                bad = False
+                for k in range(c0, c1):
+                    u = ctx[k]
+                    if not placed and v < u:
+                        q = Q[r, v]
+                        if q < 0:
+                            bad = True
+                            break
+                        cell = cell * sizes[v] + q
+                        placed = True
+                    q = Q[r, u]
+                    if q < 0:
+                        bad = True
+                        break
+                    cell = cell * sizes[u] + q
+                if bad:
+                    continue
+                if not placed:
+                    q = Q[r, v]
+                    if q < 0:
+                        continue
+                    cell = cell * sizes[v] + q
+                if ok[r]:
+                    succ[base + cell] += 1
+                else:
+                    fail[base + cell] += 1
+    return succ, fail

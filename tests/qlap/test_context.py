@@ -86,12 +86,18 @@ def test_update_contexts_many_by_hand():
                                 [2, 2, 2], P) == [(1,), None]
 
 
-def test_update_contexts_many_answers_as_update_context_one_by_one():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_update_contexts_many_answers_as_update_context_one_by_one(
+        compiled: bool, monkeypatch: pytest.MonkeyPatch):
     # Algorithm 3 on all DBNs at once: the answers of update_context with
     # StoredActivations.choose for each, on random activations (unknown values, uneven
     # sizes, current contexts of 0–2 variables, reliable and unreliable models, both
-    # ablations of the choice).
+    # ablations of the choice), with the compiled count (kernels.context_counts) and without.
+    from qlap_runtime.qlap import context
     from qlap_runtime.qlap.context import StoredActivations, update_contexts_many
+
+    if not compiled:
+        monkeypatch.setattr(context, "kernels", lambda: None)
 
     rng = np.random.default_rng(7)
     for params in (P, Params(ablations=Ablations(entropy_only=True)), Params(max_context_vars=3)):
