@@ -31,6 +31,7 @@ from .actions import (
     targeted,
 )
 from .babble import Babbler
+from .context import update_contexts_many
 from .curiosity import (
     IACChoice,
     action_weight,
@@ -368,10 +369,16 @@ class Agent:
                      dyna=not self.params.ablations.no_dyna)
 
     def _update_plan_contexts(self) -> None:
-        """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4)."""
+        """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4).
+
+        The plans' searches (Algorithm 3, :meth:`Plan.update_context`) are independent: they
+        are made together (:func:`~.context.update_contexts_many`, the same answers), then
+        each plan follows its answer in order of id."""
         sizes = self._sizes()
         perception = self.learner.perception
         quantize = perception.quantize_columns
+        searches: list[tuple[Plan, list[int], object, tuple, np.ndarray, np.ndarray]] = []
+        todo: list[tuple[Plan, list[int], object, int]] = []
         for pid in sorted(self.plans):
             plan = self.plans[pid]
             dbn = self.learner.dbns[plan.dbn_id]
@@ -380,8 +387,32 @@ class Agent:
             # of the candidates and of C_o (landmarks of other variables leave them unchanged).
             version = perception.landmark_signature(sorted({*cands, *plan.context_o}))
             plan.recount(quantize, sizes, version)
+            search = plan.context_search(cands, version)
+            todo.append((plan, cands, version, len(searches) if search is not None else -1))
+            if search is not None:
+                searches.append((plan, cands, version, *search))
+        answers: list[tuple[int, ...] | None] = []
+        if searches:
+            # As StoredActivations.quantized for each: the variables searched, quantized at
+            # once as columns 0, 1, … in order of index (an increasing renumbering).
+            cols = sorted({v for _, cands, *_ in searches for v in cands}
+                          | {v for plan, *_ in searches for v in plan.context_o})
+            at = {v: i for i, v in enumerate(cols)}
+            Q_all = perception.quantize_values(
+                np.concatenate([X[:, cols] for *_, X, _ in searches]), cols)
+            problems = []
+            row = 0
+            for plan, cands, _, _, X, ok in searches:
+                problems.append((tuple(at[v] for v in plan.context_o), [at[v] for v in cands],
+                                 Q_all[row:row + len(X)], ok))
+                row += len(X)
+            answers = [None if a is None else tuple(cols[i] for i in a) for a in
+                       update_contexts_many(problems, [sizes[v] for v in cols], self.params)]
+        for plan, _, version, j in todo:
+            dbn = self.learner.dbns[plan.dbn_id]
             before = plan.context_o
-            if plan.update_context(cands, quantize, sizes, version) and \
+            if j >= 0 and plan.context_found(searches[j][3], answers[j], quantize, sizes,
+                                             version) and \
                     plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
                 plan.context_o = before                 # too large a state space: keep C_o
                 plan.recount(quantize, sizes, version)
