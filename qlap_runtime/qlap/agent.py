@@ -59,7 +59,7 @@ from .planner import (
     Plan,
     PlanGroups,
     PlanTooLarge,
-    creates_cycle,
+    closes_cycle,
     dbn_rel_state,
     plan_entries,
 )
@@ -480,13 +480,15 @@ class Agent:
             ranked.append(((-overall, st.brel is None, -(st.brel or 0.0), st.entropy, dbn_id),
                            dbn))
         ranked.sort(key=lambda r: r[0])
-        edges = self._plan_edges()
+        adj: dict[ActionKey, list[ActionKey]] = {}              # the edges of _plan_edges
+        for a, b in self._plan_edges():
+            adj.setdefault(a, []).append(b)
         for _, dbn in ranked:
             key = (dbn.consequent.var, dbn.consequent.value)
             if not self._antecedent_achievable(dbn):
                 continue
             edge = (key, (dbn.antecedent.var, dbn.antecedent.value))
-            if creates_cycle(edges, edge):
+            if closes_cycle(adj, edge):
                 continue                                              # §6.2.2 criterion 2
             mine = [pl for pl in self.plans.values() if pl.action == key]
             if dbn.kind != CHANGE:
@@ -503,8 +505,8 @@ class Agent:
                     continue
                 if slots.free <= 0 and slots.replaceable is not None:
                     self._remove_plan(change_plans[slots.replaceable].id)
-            if self._add_plan(dbn, t) is not None:
-                edges.add(edge)
+            if self._add_plan(dbn, t) is not None and edge[1] not in adj.get(edge[0], ()):
+                adj.setdefault(edge[0], []).append(edge[1])
 
     def _reliable_at(self, dbn: DBN, theta: float) -> bool:
         st = model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), self.params)
@@ -687,7 +689,7 @@ class Agent:
         if p.discontinuity:
             return out, weights
         groups = self._plan_groups()
-        q_list = p.q.tolist()
+        q_list = self._q_list(p)
         # Actions not achieved now (:meth:`_achieved`) with a usable plan (known state, from
         # the current side: :meth:`_usable_plans`), tested for all plans at once.
         found, usable = groups.usable(p.q, self._magnitude_vars())
@@ -733,7 +735,28 @@ class Agent:
     # the call list (Algorithms 6 and 7)
     # ------------------------------------------------------------------------------------------
     def _achieved(self, key: ActionKey, p: Percept) -> bool:
-        return int(p.q[key[0]]) == key[1]
+        return self._q_list(p)[key[0]] == key[1]
+
+    def _q_list(self, p: Percept) -> list[int]:
+        """``p.q.tolist()`` (Python ints), kept for the percept of the step (the executor
+        reads single values of it many times per step)."""
+        cached = self.__dict__.get("_q_cache")
+        if cached is not None and cached[0] is p:
+            return cached[1]
+        q = p.q.tolist()
+        self._q_cache = (p, q)
+        return q
+
+    def _self_sorted(self) -> tuple[int, ...]:
+        """``sorted(self.self_vars)``, kept while ``self_vars`` is the same set of the same
+        size (:meth:`_update_self` assigns a new one)."""
+        cached = self.__dict__.get("_self_cache")
+        sv = self.self_vars
+        if cached is not None and cached[0] is sv and cached[1] == len(sv):
+            return cached[2]
+        out = tuple(sorted(sv))
+        self._self_cache = (sv, len(sv), out)
+        return out
 
     def _iac_weight(self, stats: ActionStats) -> float | None:
         """:func:`~.curiosity.iac_weight` of an action, cached until its next record (the
@@ -755,7 +778,7 @@ class Agent:
         variable without a value) and magnitude plans from the current side."""
         if p.discontinuity:
             return []        # the state is not fully known (no direction of change is defined)
-        full = p.q.tolist()
+        full = self._q_list(p)
         known = sorted((pl for pl in plans
                         if pl.space is not None and pl.space.index_from_full(full) is not None),
                        key=lambda pl: pl.id)
@@ -844,7 +867,7 @@ class Agent:
 
     def _plan_state(self, plan: Plan, p: Percept) -> int | None:
         assert plan.space is not None
-        return plan.space.index_from_full(p.q)
+        return plan.space.index_from_full(self._q_list(p))
 
     def _next_sub(self, i: int, p: Percept, first: bool = False) -> str:
         """Choose and call the plan's next action by its policy (ε-greedy, §6.1.3)."""
@@ -963,7 +986,8 @@ class Agent:
         if t - f.started >= self.params.option_max_steps:
             return True
         s = self._plan_state(plan, p)
-        sig = (s, *(int(p.q[v]) for v in sorted(self.self_vars)))
+        q = self._q_list(p)
+        sig = (s, *[q[v] for v in self._self_sorted()])
         if sig != f.last_sig:
             f.last_sig, f.last_change = sig, t
             return False

@@ -78,7 +78,11 @@ class PlanStateSpace:
     @property
     def n_states(self) -> int:
         """|S| = Π |Q(v)|."""
-        return int(np.prod(self.sizes, dtype=np.int64))
+        cached = self.__dict__.get("_n_states")
+        if cached is None:
+            cached = int(np.prod(self.sizes, dtype=np.int64))
+            object.__setattr__(self, "_n_states", cached)
+        return cached
 
     @property
     def strides(self) -> tuple[int, ...]:
