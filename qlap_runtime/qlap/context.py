@@ -136,6 +136,11 @@ class StoredActivations:
         return cls(Q, ok, sizes, params)
 
     def evaluate(self, ctx: tuple[int, ...]) -> ModelStats:
+        if not ctx:
+            # One cell: the counts the bincounts below give (whole numbers as floats).
+            k = int(np.count_nonzero(self.ok))
+            return model_stats(np.array([float(k)]), np.array([float(len(self.ok) - k)]), 0,
+                               self.params)
         sizes = [int(self.sizes[v]) for v in ctx]
         n_cells = int(np.prod(sizes)) if ctx else 1
         cells = context_cells([self.Q[:, v] for v in ctx], sizes) if ctx else \

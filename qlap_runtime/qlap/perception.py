@@ -200,8 +200,13 @@ class Perception:
         its indices). Caches of results computed from these variables' qualitative values
         alone stay valid while the signature is equal (landmarks are immutable values), even
         when other variables gained landmarks (``landmarks_version`` changed)."""
-        spaces = self.spaces
-        return tuple(tuple(spaces[v].landmarks) for v in variables)
+        c = self.__dict__.get("_signature_cache")
+        if c is None or c[0] != self.landmarks_version or c[1] is not self.spaces:
+            # Each variable's landmarks as a tuple, kept until the landmarks change.
+            c = self._signature_cache = (self.landmarks_version, self.spaces,
+                                         [tuple(s.landmarks) for s in self.spaces])
+        per_var = c[2]
+        return tuple(per_var[v] for v in variables)
 
     def add_landmark(self, var: int, lm: Landmark) -> int:
         """Insert a landmark on a motor or magnitude variable; returns the split interval."""
