@@ -24,8 +24,8 @@ _tried = False
 
 
 def kernels() -> SimpleNamespace | None:
-    """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``, ``context_counts``), or
-    None without numba."""
+    """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``, ``context_counts``,
+    ``bisimilar``), or None without numba."""
     global _compiled, _tried
     if not _tried:
         _tried = True
@@ -36,8 +36,11 @@ def kernels() -> SimpleNamespace | None:
         except ImportError:                               # pragma: no cover - a dependency
             return None
         jit = numba.njit(cache=True, fastmath=False, nogil=True)
+        global _row_classes
+        _row_classes = jit(row_classes)                # called by bisimilar, compiled too
         _compiled = SimpleNamespace(vi_sweeps=jit(vi_sweeps), dyna=jit(dyna), sarsa=jit(sarsa),
-                                    context_counts=jit(context_counts))
+                                    context_counts=jit(context_counts),
+                                    bisimilar=jit(bisimilar))
     return _compiled
 
 
@@ -161,3 +164,89 @@ def context_counts(Q: np.ndarray, ok: np.ndarray, row_lo: np.ndarray, row_hi: np
                 else:
                     fail[base + cell] += 1
     return succ, fail
+
+
+def row_classes(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Classes of equal rows of an int64 matrix, numbered in the order of their first rows:
+    (class of each row, first row of each class) — :func:`~.mdp._row_classes`' answer (the
+    canonical one: exact equality, first-occurrence numbering). Rows are bucketed by a hash
+    and compared whole within a bucket."""
+    n, w = rows.shape
+    h = np.empty(n, dtype=np.uint64)
+    for i in range(n):
+        acc = np.uint64(1469598103934665603)
+        for j in range(w):
+            acc = (acc ^ np.uint64(rows[i, j])) * np.uint64(1099511628211)
+        h[i] = acc
+    order = np.argsort(h, kind="mergesort")            # stable: rows of a bucket by index
+    label = np.empty(n, dtype=np.int64)
+    bucket = np.empty(n, dtype=np.int64)               # the distinct rows of a bucket
+    start = 0
+    while start < n:
+        end = start + 1
+        while end < n and h[order[end]] == h[order[start]]:
+            end += 1
+        nb = 0
+        for t in range(start, end):
+            r = order[t]
+            found = -1
+            for b in range(nb):
+                c = bucket[b]
+                same = True
+                for j in range(w):
+                    if rows[r, j] != rows[c, j]:
+                        same = False
+                        break
+                if same:
+                    found = c
+                    break
+            if found < 0:
+                bucket[nb] = r
+                nb += 1
+                label[r] = r
+            else:
+                label[r] = found
+        start = end
+    cls = np.empty(n, dtype=np.int64)
+    reps = np.empty(n, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        if label[i] == i:
+            cls[i] = k
+            reps[k] = i
+            k += 1
+        else:
+            cls[i] = cls[label[i]]
+    return cls, reps[:k].copy()
+
+
+_row_classes = row_classes
+"""What :func:`bisimilar` calls: :func:`row_classes`, compiled by :func:`kernels`."""
+
+
+def bisimilar(init: np.ndarray, next1: np.ndarray, next2: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~.mdp._bisimilar` from its first signature ``init`` (per state the bits of
+    E[R] and p1 of each action, as int64): refine the classes by the classes of the next
+    states until every state agrees with its class's first state."""
+    n_s, n_a = next1.shape
+    cls, reps = _row_classes(init)
+    sig = np.empty((n_s, 2 * n_a + 1), dtype=np.int64)
+    while True:
+        for s in range(n_s):
+            sig[s, 0] = cls[s]
+            for a in range(n_a):
+                sig[s, 1 + a] = cls[next1[s, a]]
+                sig[s, 1 + n_a + a] = cls[next2[s, a]]
+        stable = True
+        for s in range(n_s):
+            r = reps[cls[s]]
+            for j in range(2 * n_a + 1):
+                if sig[s, j] != sig[r, j]:
+                    stable = False
+                    break
+            if not stable:
+                break
+        if stable:
+            return cls, reps
+        cls, reps = _row_classes(sig)

@@ -771,6 +771,10 @@ def _bisimilar(applicable: np.ndarray, expected_r: np.ndarray, p1: np.ndarray,
     # NaN marks an inapplicable pair (E[R] of an applicable one is finite).
     sig[:, 1:n_a + 1] = np.where(applicable, expected_r, np.nan).view(np.int64)
     sig[:, n_a + 1:] = np.where(applicable, p1, 0.0).view(np.int64)
+    k = kernels()
+    if k is not None:                        # the same partition, compiled (kernels.bisimilar)
+        return k.bisimilar(np.ascontiguousarray(sig[:, 1:]), np.ascontiguousarray(next1),
+                           np.ascontiguousarray(next2))
     cls, reps = _row_classes(sig[:, 1:])
     while True:
         # An inapplicable pair leads to its own state (TransitionModel.build), whose class all

@@ -104,3 +104,31 @@ def test_sarsa_compiled_by_hand() -> None:
     assert e.tolist() == [[0.5 * 0.81, 0.81, 0.0]]
     k.sarsa(q, e, 0, 2, 1.0, 0.81, True)
     assert e.tolist() == [[0.0, 0.0, 0.0]]
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_bisimilar_compiled_is_the_numpy_one(seed: int) -> None:
+    rng = np.random.default_rng(200 + seed)
+    model = _random_model(rng)
+    r1, r2 = model.rewards(P)
+    er = model.p1 * r1 + (1.0 - model.p1) * r2
+    args = (model.applicable, er, model.p1, model.next1, model.next2)
+    got = mdp._bisimilar(*args)
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(mdp, "kernels", lambda: None)
+        want = mdp._bisimilar(*args)
+    assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
+
+
+def test_row_classes_compiled_by_hand() -> None:
+    # Rows 0 and 2 equal, 1 and 4 equal: classes by first row 0, 1, 0, 2, 1.
+    k = kernels()
+    assert k is not None
+    from qlap_runtime.qlap import kernels as kmod
+
+    rows = np.array([[1, 2], [3, 4], [1, 2], [5, 6], [3, 4]], dtype=np.int64)
+    cls, first = kmod._row_classes(rows)
+    assert cls.tolist() == [0, 1, 0, 2, 1] and first.tolist() == [0, 1, 3]
+    with np.errstate(over="ignore"):                       # the loop run by Python
+        cls2, first2 = kmod.row_classes(rows)
+    assert cls2.tolist() == [0, 1, 0, 2, 1] and first2.tolist() == [0, 1, 3]
