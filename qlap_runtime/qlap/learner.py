@@ -145,7 +145,9 @@ class ModelLearner:
         percept = self.perception.perceive(step, x, copy=False, discontinuity=discontinuity)
         if discontinuity:
             self._drop_open_windows()
+        self._own = percept
         p = self._learn_step(percept)
+        self._own = None
         if not self.auto_batches:
             return p
         while self.pending_deltas and self.pending_deltas[0].apply_at <= step:
@@ -178,6 +180,8 @@ class ModelLearner:
                 dbn.pending.remove(entry)
                 self._resolve(dbn, entry[1], False)
         # Activations by antecedent events, then consequents (soon includes t itself, eq. 4.2).
+        if p is self._own:
+            self._remember_q(p)
         for e in p.events:
             for dbn in self._by_antecedent.get(e, ()):
                 entry = [t, p.x, False]
@@ -234,7 +238,39 @@ class ModelLearner:
         cell = self._cell_of(dbn, x)
         dbn.record(x, success, cell)
 
+    _own: Percept | None = None
+    _Q_HORIZON = 64
+
+    def _remember_q(self, p: Percept) -> None:
+        """Keep the qualitative values of the step's real vector ``p.x`` (as perceived here,
+        with the current landmarks) for :meth:`_cell_of`, which reads the context values of
+        the activations started at this step when they resolve: ``p.q[v]`` is
+        :meth:`value_of` ``(v, p.x[v])`` while the landmarks are these. Kept for
+        ``_Q_HORIZON`` steps (an activation resolved later is quantized again)."""
+        reg = self.__dict__.get("_x_q")
+        if reg is None:
+            reg = self._x_q = {}
+            self._x_q_order: deque[tuple[int, int]] = deque()
+        order = self._x_q_order
+        while order and order[0][0] < p.step - self._Q_HORIZON:
+            reg.pop(order.popleft()[1], None)
+        reg[id(p.x)] = (p.x, p.q.tolist(), self.perception.landmarks_version)
+        order.append((p.step, id(p.x)))
+
     def _cell_of(self, dbn: DBN, x: np.ndarray) -> int:
+        if not dbn.context:
+            return 0
+        reg = self.__dict__.get("_x_q")
+        hit = reg.get(id(x)) if reg is not None else None
+        if hit is not None and hit[0] is x and hit[2] == self.perception.landmarks_version:
+            q_list, sizes = hit[1], self.perception.events.sizes
+            cell = 0
+            for v in dbn.context:
+                q = q_list[v]
+                if q < 0:
+                    return -1
+                cell = cell * sizes[v] + q
+            return cell
         cell = 0
         for v in dbn.context:
             q = self.value_of(v, x[v])
