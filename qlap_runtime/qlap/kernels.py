@@ -25,7 +25,7 @@ _tried = False
 
 def kernels() -> SimpleNamespace | None:
     """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``, ``context_counts``,
-    ``bisimilar``), or None without numba."""
+    ``bisimilar``, ``sequence_bounds``), or None without numba."""
     global _compiled, _tried
     if not _tried:
         _tried = True
@@ -40,7 +40,8 @@ def kernels() -> SimpleNamespace | None:
         _row_classes = jit(row_classes)                # called by bisimilar, compiled too
         _compiled = SimpleNamespace(vi_sweeps=jit(vi_sweeps), dyna=jit(dyna), sarsa=jit(sarsa),
                                     context_counts=jit(context_counts),
-                                    bisimilar=jit(bisimilar))
+                                    bisimilar=jit(bisimilar),
+                                    sequence_bounds=jit(sequence_bounds))
     return _compiled
 
 
@@ -250,3 +251,63 @@ def bisimilar(init: np.ndarray, next1: np.ndarray, next2: np.ndarray
         if stable:
             return cls, reps
         cls, reps = _row_classes(sig)
+
+
+def sequence_bounds(X: np.ndarray, Y: np.ndarray, Q: np.ndarray, n_values: int,
+                    H: np.ndarray) -> np.ndarray:
+    """:func:`~.landmarks._sequence_bounds` with the binary entropies read from the table
+    ``H[n, k]`` = H(k / n) (numpy's values, :func:`entropy_table`): per row, its values sorted
+    stably (NaN last, in order), runs of equal Q are the blocks, and each block's bound is the
+    largest gain H(S/N) − ln/N·H(ls/ln) − rn/N·H(rs/rn) over its cut positions with rn > 0
+    (whole-number counts; the same operations on the same numbers as numpy's)."""
+    C, R = X.shape
+    out = np.full((C, n_values), -np.inf)
+    order = np.empty(R, dtype=np.int64)
+    for c in range(C):
+        n_ok = 0
+        for i in range(R):
+            if not np.isnan(X[c, i]):
+                n_ok += 1
+        idx = np.empty(n_ok, dtype=np.int64)
+        vals = np.empty(n_ok)
+        m = 0
+        for i in range(R):
+            if not np.isnan(X[c, i]):
+                idx[m] = i
+                vals[m] = X[c, i]
+                m += 1
+        srt = np.argsort(vals, kind="mergesort")
+        for i in range(n_ok):
+            order[i] = idx[srt[i]]
+        m = n_ok
+        for i in range(R):
+            if np.isnan(X[c, i]):
+                order[m] = i
+                m += 1
+        b = 0
+        while b < R:
+            q = Q[c, order[b]]
+            e = b
+            while e + 1 < R and Q[c, order[e + 1]] == q:
+                e += 1
+            n_blk = e - b + 1
+            s_blk = 0
+            for i in range(b, e + 1):
+                s_blk += int(Y[c, order[i]])
+            best = -np.inf
+            if q >= 0:
+                N = float(n_blk)
+                h_all = H[n_blk, s_blk]
+                ls = 0
+                for i in range(b, e + 1):
+                    ls += int(Y[c, order[i]])
+                    ln = i - b + 1
+                    rn = n_blk - ln
+                    if rn > 0:
+                        g = h_all - float(ln) / N * H[ln, ls] - float(rn) / N * H[rn, s_blk - ls]
+                        if g > best:
+                            best = g
+            if 0 <= q < n_values:
+                out[c, q] = best
+            b = e + 1
+    return out

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels import kernels
 from .probability import binary_entropy_array
 
 
@@ -193,11 +194,37 @@ def cut_gain_bounds_many(items: list[GainItem], n_values: int
     return outs
 
 
+_ENTROPY_TABLES: dict[int, np.ndarray] = {}
+
+
+def entropy_table(n_max: int) -> np.ndarray:
+    """``H[n, k]`` = H(k / n) in bits for 1 ≤ n ≤ ``n_max``, 0 ≤ k ≤ n (0 elsewhere), by
+    :func:`~.probability.binary_entropy_array` on the quotients k / n: the values it gives
+    for the same quotients anywhere (a block's counts are whole numbers up to its length)."""
+    H = _ENTROPY_TABLES.get(n_max)
+    if H is None:
+        n = np.arange(n_max + 1, dtype=float)[:, None]
+        k = np.arange(n_max + 1, dtype=float)[None, :]
+        ok = (n >= 1) & (k <= n)
+        p = np.divide(k, n, out=np.zeros((n_max + 1, n_max + 1)), where=ok)
+        H = np.where(ok, binary_entropy_array(p), 0.0)
+        H.flags.writeable = False
+        _ENTROPY_TABLES[n_max] = H
+    return H
+
+
 def _sequence_bounds(X: np.ndarray, Y: np.ndarray, Q: np.ndarray, n_values: int) -> np.ndarray:
     """:func:`_block_bounds` with one sequence per row (its own success labels ``Y``, 0/1 as
     floats) instead of one per column: shape (rows, n_values). The same element-wise
-    operations on the same values, in the transposed layout."""
+    operations on the same values, in the transposed layout (compiled: kernels.sequence_bounds
+    with the entropies from :func:`entropy_table`)."""
     C, R = X.shape
+    k = kernels()
+    if k is not None:
+        n_max = max(200, 1 << max(R - 1, 1).bit_length())        # a few tables at most
+        return k.sequence_bounds(np.ascontiguousarray(X), np.ascontiguousarray(Y),
+                                 np.ascontiguousarray(Q, dtype=np.int64), int(n_values),
+                                 entropy_table(n_max))
     out = np.full((C, n_values), -np.inf)
     order = np.argsort(X, axis=1, kind="stable")
     Qs = np.take_along_axis(Q, order, axis=1)

@@ -132,3 +132,24 @@ def test_row_classes_compiled_by_hand() -> None:
     with np.errstate(over="ignore"):                       # the loop run by Python
         cls2, first2 = kmod.row_classes(rows)
     assert cls2.tolist() == [0, 1, 0, 2, 1] and first2.tolist() == [0, 1, 3]
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_sequence_bounds_compiled_is_the_numpy_one(seed: int,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    # Algorithm 4's gain bounds (§4.4.1): the compiled loop with the entropy table gives
+    # numpy's bounds bit for bit (ties in the values, NaNs, Q not monotone, labels 0/1).
+    from qlap_runtime.qlap import landmarks
+
+    rng = np.random.default_rng(300 + seed)
+    C, R = int(rng.integers(1, 40)), int(rng.integers(1, 260))
+    X = np.round(rng.normal(size=(C, R)), int(rng.integers(0, 3)))
+    X[rng.random(X.shape) < 0.05] = np.nan
+    Y = (rng.random((C, R)) < rng.random()).astype(float)
+    Q = np.where(np.isnan(X), -1, (X > -0.5).astype(np.int64) * 2 + (X > 0.5) * 2)
+    if seed % 3 == 0:
+        Q = rng.integers(-1, 6, size=(C, R))                  # any labels, runs split
+    got = landmarks._sequence_bounds(X, Y, Q, 5)
+    monkeypatch.setattr(landmarks, "kernels", lambda: None)
+    want = landmarks._sequence_bounds(X, Y, Q, 5)
+    assert got.tobytes() == want.tobytes()
