@@ -25,7 +25,8 @@ _tried = False
 
 def kernels() -> SimpleNamespace | None:
     """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``, ``context_counts``,
-    ``bisimilar``, ``sequence_bounds``), or None without numba."""
+    ``bisimilar``, ``sequence_bounds``, ``quantize_row``, ``events_of``), or None without
+    numba."""
     global _compiled, _tried
     if not _tried:
         _tried = True
@@ -41,7 +42,8 @@ def kernels() -> SimpleNamespace | None:
         _compiled = SimpleNamespace(vi_sweeps=jit(vi_sweeps), dyna=jit(dyna), sarsa=jit(sarsa),
                                     context_counts=jit(context_counts),
                                     bisimilar=jit(bisimilar),
-                                    sequence_bounds=jit(sequence_bounds))
+                                    sequence_bounds=jit(sequence_bounds),
+                                    quantize_row=jit(quantize_row), events_of=jit(events_of))
     return _compiled
 
 
@@ -311,3 +313,47 @@ def sequence_bounds(X: np.ndarray, Y: np.ndarray, Q: np.ndarray, n_values: int,
                 out[c, q] = best
             b = e + 1
     return out
+
+
+def quantize_row(x: np.ndarray, ordered_idx: np.ndarray, ub: np.ndarray, lb: np.ndarray,
+                 nlm: np.ndarray, nominal_idx: np.ndarray) -> np.ndarray:
+    """:meth:`~.perception.Perception._quantize_row`: per ordered variable j = #{ub < x} and
+    2j + (x on landmark j); a nominal variable's value is its index (truncated)."""
+    q = np.empty(x.size, dtype=np.int64)
+    for r in range(ordered_idx.size):
+        i = ordered_idx[r]
+        xv = x[i]
+        nl = nlm[r]
+        j = 0
+        for c in range(nl):
+            if ub[r, c] < xv:
+                j += 1
+        q[i] = 2 * j + (1 if (j < nl and xv >= lb[r, j]) else 0)
+    for i in nominal_idx:
+        q[i] = np.int64(x[i])
+    return q
+
+
+def events_of(q: np.ndarray, prev: np.ndarray, is_mag: np.ndarray, offset: np.ndarray,
+              mult: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The events of :meth:`~.perception.Perception.perceive`: the variables whose known value
+    changed, their new values, directions (±1 on magnitudes, 0 elsewhere) and event ids."""
+    n = 0
+    for i in range(q.size):
+        if q[i] != prev[i] and q[i] >= 0 and prev[i] >= 0:
+            n += 1
+    ev = np.empty(n, dtype=np.int64)
+    val = np.empty(n, dtype=np.int64)
+    dirs = np.empty(n, dtype=np.int64)
+    ids = np.empty(n, dtype=np.int64)
+    k = 0
+    for i in range(q.size):
+        if q[i] != prev[i] and q[i] >= 0 and prev[i] >= 0:
+            down = 1 if (is_mag[i] and q[i] < prev[i]) else 0
+            up = 1 if (is_mag[i] and down == 0) else 0
+            ev[k] = i
+            val[k] = q[i]
+            dirs[k] = up - down
+            ids[k] = offset[i] + q[i] * mult[i] + down
+            k += 1
+    return ev, val, dirs, ids

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .kernels import kernels
 from .params import Params
 from .quantity import Landmark, QuantitySpace
 from .variables import Event, Kind, VariableTable
@@ -357,12 +358,27 @@ class Perception:
         # Direction of change per second (§3.1, Tables 8.7–8.10).
         x[self._change_idx] = (x[self._change_src] - self.prev_x[self._change_src]) \
             / self.params.step_seconds
+        k = kernels()
         if finite and self._all_seen:
-            q = self._quantize_row(x)
+            if k is not None:                   # the same values, compiled
+                q = k.quantize_row(x, self._ordered_idx, self._ub, self._lb, self._nlm,
+                                   self._nominal_idx)
+            else:
+                q = self._quantize_row(x)
         else:
             q = self.quantize(x)
             self._all_seen = bool((q >= 0).all())
         prev = self.prev_q
+        if k is not None and prev.dtype == np.int64 and q.dtype == np.int64:
+            ev, val, dirs, ids = k.events_of(q, prev, self._is_mag, self.events.offset,
+                                             self.events.mult)
+            events = tuple(map(Event, ev.tolist(), val.tolist(), dirs.tolist()))
+            if remember:
+                self._remember(x, q)
+            else:
+                self.prev_x = x
+                self.prev_q = q
+            return Percept(step, x, q, events, ids, discontinuity)
         ev_vars = ((q != prev) & (q >= 0) & (prev >= 0)).nonzero()[0]
         if len(ev_vars):
             qv = q[ev_vars]

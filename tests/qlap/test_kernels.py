@@ -153,3 +153,38 @@ def test_sequence_bounds_compiled_is_the_numpy_one(seed: int,
     monkeypatch.setattr(landmarks, "kernels", lambda: None)
     want = landmarks._sequence_bounds(X, Y, Q, 5)
     assert got.tobytes() == want.tobytes()
+
+
+def test_perceive_compiled_is_the_numpy_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Perception (§3.1–3.2) with the compiled quantization and events: the same percepts
+    # (values, events, ids) on a stream with a nominal variable, landmarks and
+    # discontinuities (no direction of change on the step after one).
+    from qlap_runtime.qlap import perception as per
+    from qlap_runtime.qlap.quantity import Landmark
+    from qlap_runtime.qlap.variables import VariableTable
+    from tests.qlap.toyworld import Spec
+
+    table = VariableTable.from_specs([
+        Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"), Spec("y", "magnitude"),
+        Spec("n", "nominal", values=("a", "b", "c"))])
+
+    def run(compiled: bool) -> list:
+        with monkeypatch.context() as m:
+            if not compiled:
+                m.setattr(per, "kernels", lambda: None)
+            p = per.Perception(table, P)
+            p.add_landmark(table.index("x"), Landmark(0.0, 0.5))
+            p.add_landmark(table.index("x"), Landmark(2.0, 2.0))
+            p.add_landmark(table.index("y"), Landmark(-1.0, 1.0))
+            rng = np.random.default_rng(0)
+            out = []
+            for t in range(400):
+                obs = {"u": float(rng.uniform(-1, 1)), "x": float(rng.normal(1, 1.5)),
+                       "y": float(rng.normal(0, 2)),
+                       "n": float(rng.integers(0, 3))}
+                pc = p.perceive(t, p.vector(obs), discontinuity=t % 97 == 0)
+                out.append((pc.x.tobytes(), pc.q.tobytes(), pc.q.dtype, pc.events,
+                            pc.event_ids.tobytes(), pc.event_ids.dtype))
+            return out
+
+    assert run(True) == run(False)
