@@ -640,7 +640,8 @@ def _rel_states(rel: RelModel, space: PlanStateSpace, vals: np.ndarray) -> np.nd
 
 
 def _check_probs(p: np.ndarray, name: str) -> np.ndarray:
-    if not np.all((p >= 0.0) & (p <= 1.0)):
+    # All in [0, 1] (NaN fails: min and max propagate it), in two reductions.
+    if p.size and not (p.min() >= 0.0 and p.max() <= 1.0):
         raise ValueError(f"{name} must lie in [0, 1]")
     return p
 

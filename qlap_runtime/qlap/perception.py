@@ -207,7 +207,7 @@ class Perception:
             c = self._signature_cache = (self.landmarks_version, self.spaces,
                                          [tuple(s.landmarks) for s in self.spaces])
         per_var = c[2]
-        return tuple(per_var[v] for v in variables)
+        return tuple([per_var[v] for v in variables])
 
     def add_landmark(self, var: int, lm: Landmark) -> int:
         """Insert a landmark on a motor or magnitude variable; returns the split interval."""
