@@ -831,12 +831,10 @@ class Agent:
             ante = dbn.antecedent
             excluded.append((ante.var, ante.value) in in_list)
             cell = _cell_of(dbn.context, q, sizes) if dbn.context else 0
-            # rel(r, s) of the one cell (eq. B.1); a cell without counts (−1) has none. The
-            # DBN's per-cell values are this formula's on the same numbers, bit for bit.
-            if 0 <= cell < len(dbn.cpt_s):
-                rel_rs = dbn.cell_reliabilities(prior)[cell]
-            else:
-                rel_rs = (0.0 + prior) / (0.0 + 0.0 + 2 * prior)
+            # rel(r, s) of the one cell (eq. B.1); a cell without counts (−1) has none
+            sc, fc = (float(dbn.cpt_s[cell]), float(dbn.cpt_f[cell])) \
+                if 0 <= cell < len(dbn.cpt_s) else (0.0, 0.0)
+            rel_rs = (sc + prior) / (sc + fc + 2 * prior)
             rel_o = plan.rel_state(_cell_of(plan.context_o, q, sizes) if plan.context_o else 0)
             rel_os.append(rel_o)
             w.append(plan_weight(rel_rs, rel_o))
