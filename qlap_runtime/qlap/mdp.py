@@ -550,10 +550,12 @@ class TransitionModel:
         # Every entry of p1 is a copy of rel(r, s), of its action's rel(a) or 0.0, as in
         # build: gathered at once from the three.
         values = np.concatenate((rel_r, rel_a, _ZERO))
-        p1 = values.take(source)
-        p1.flags.writeable = False
-        model = TransitionModel(space, self.actions, self.spec, self.next1, p1, self.next2,
-                                self.applicable, self.goal)
+        # p1 is gathered when first read (:meth:`__getattr__`): a Dyna refresh reads only the
+        # applicable pairs' values below, and a large plan's table has ~10⁵ pairs.
+        model = TransitionModel(space, self.actions, self.spec, self.next1, None,  # type: ignore[arg-type]
+                                self.next2, self.applicable, self.goal)
+        object.__delattr__(model, "p1")
+        object.__setattr__(model, "_p1_lazy", (values, source))
         object.__setattr__(model, "_p1_recipe", recipe)
         object.__setattr__(model, "_p1_src", self.__dict__["_p1_src"])
         rewards = self.__dict__.get("_rewards")     # R does not depend on p1
@@ -567,6 +569,18 @@ class TransitionModel:
             object.__setattr__(model, "_applicable_pairs",
                                (key, (flat, a1, 1.0 - a1, r1, r2, n1, n2)))
         return model
+
+    def __getattr__(self, name: str) -> Any:
+        # Only for attributes not set: ``p1`` of a model from with_reliabilities, gathered
+        # once from its values and sources (the very values an eager gather gives).
+        if name == "p1":
+            lazy = self.__dict__.get("_p1_lazy")
+            if lazy is not None:
+                p1 = lazy[0].take(lazy[1])
+                p1.flags.writeable = False
+                object.__setattr__(self, "p1", p1)
+                return p1
+        raise AttributeError(f"{type(self).__name__!s} has no attribute {name!r}")
 
     def _p1_sources(self) -> tuple[np.ndarray, np.ndarray]:
         """Where each entry of ``p1`` comes from (cached), as indices into rel(r, s) (one per
