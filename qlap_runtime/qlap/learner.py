@@ -633,19 +633,26 @@ class ModelLearner:
         real_vars = [v for v, u in zip(real_vars, useful.tolist(), strict=True) if u]
         cols, prob = cols[useful], prob[useful]
         is_motor = np.array([v.kind is Kind.MOTOR for v in real_vars], dtype=bool)
+        stored = [(dbn_id, self.dbns[dbn_id]) for dbn_id in sorted(self.dbns)
+                  if self.dbns[dbn_id].kind == CHANGE
+                  and self.dbns[dbn_id].act_n >= p.min_data_points]
+        acts = [dbn.stored() for _, dbn in stored]
+        # The columns of every DBN quantized in one call (column by column the values of
+        # quantize_columns on each DBN's rows).
+        Q_cols = self.perception.quantize_values(
+            np.concatenate([X[:, cols] for X, _ in acts]), cols) if acts and len(cols) \
+            else np.zeros((sum(len(X) for X, _ in acts), len(cols)), dtype=np.int64)
+        row = 0
         searched = []
-        for dbn_id in sorted(self.dbns):
-            dbn = self.dbns[dbn_id]
-            if dbn.kind != CHANGE or dbn.act_n < p.min_data_points:
-                continue
-            X, ok = dbn.stored()
+        for (dbn_id, dbn), (X, ok) in zip(stored, acts, strict=True):
             # App. D.2: a motor only as the DBN's antecedent, a magnitude only if it is not
             # (D.1: no motor in a context): only these columns are bounded; the others keep
             # a bound of −inf, so no landmark is sought on them.
             rel = np.flatnonzero(is_motor == (cols == dbn.antecedent.var))
             used = cols[rel]
             Q = np.full(X.shape, -1, dtype=np.int64)              # only the columns used
-            Q[:, used] = self.perception.quantize_columns(X, used)
+            Q[:, used] = Q_cols[row:row + len(X), rel]
+            row += len(X)
             cq = None
             if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
                 cq = self.perception.quantize_columns(X, dbn.context)[:, 0]
