@@ -25,8 +25,8 @@ _tried = False
 
 def kernels() -> SimpleNamespace | None:
     """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``, ``context_counts``,
-    ``bisimilar``, ``sequence_bounds``, ``quantize_row``, ``events_of``), or None without
-    numba."""
+    ``bisimilar``, ``sequence_bounds``, ``quantize_row``, ``events_of``, ``pairs_update``),
+    or None without numba."""
     global _compiled, _tried
     if not _tried:
         _tried = True
@@ -43,7 +43,8 @@ def kernels() -> SimpleNamespace | None:
                                     context_counts=jit(context_counts),
                                     bisimilar=jit(bisimilar),
                                     sequence_bounds=jit(sequence_bounds),
-                                    quantize_row=jit(quantize_row), events_of=jit(events_of))
+                                    quantize_row=jit(quantize_row), events_of=jit(events_of),
+                                    pairs_update=jit(pairs_update))
     return _compiled
 
 
@@ -357,3 +358,40 @@ def events_of(q: np.ndarray, prev: np.ndarray, is_mag: np.ndarray, offset: np.nd
             ids[k] = offset[i] + q[i] * mult[i] + down
             k += 1
     return ev, val, dirs, ids
+
+
+def pairs_update(step: int, k: int, first_step: int, event_ids: np.ndarray,
+                 win_t: np.ndarray, win_ids: np.ndarray, occurrences: np.ndarray,
+                 soon_given: np.ndarray, soon_steps: np.ndarray, last_cons: np.ndarray,
+                 cons_of_event: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`~.contingency.PairStatistics.update` on its arrays (in place; returns the new
+    window): occurrences whose window closed become trials, then each consequent event of
+    the step credits once every antecedent occurrence in its window not yet credited."""
+    n = win_t.size
+    cut = 0
+    while cut < n and win_t[cut] <= step - k:
+        occurrences[win_ids[cut]] += 1
+        cut += 1
+    m = event_ids.size
+    new_t = np.empty(n - cut + m, dtype=np.int64)
+    new_ids = np.empty(n - cut + m, dtype=np.int64)
+    for i in range(cut, n):
+        new_t[i - cut] = win_t[i]
+        new_ids[i - cut] = win_ids[i]
+    for i in range(m):
+        new_t[n - cut + i] = step
+        new_ids[n - cut + i] = event_ids[i]
+    total = n - cut + m
+    for i in range(m):
+        c = cons_of_event[event_ids[i]]
+        if c < 0:
+            continue
+        lo = max(max(last_cons[c] + 1, step - k + 1), first_step)
+        soon_steps[c] += step - lo + 1
+        last_cons[c] = step
+        s = 0
+        while s < total and new_t[s] < lo:
+            s += 1
+        for r in range(s, total):
+            soon_given[new_ids[r], c] += 1
+    return new_t, new_ids

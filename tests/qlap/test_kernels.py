@@ -188,3 +188,32 @@ def test_perceive_compiled_is_the_numpy_one(monkeypatch: pytest.MonkeyPatch) -> 
             return out
 
     assert run(True) == run(False)
+
+
+def test_pair_statistics_compiled_are_the_numpy_ones(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The pairwise contingency counts (§4.1.2) with the compiled update: the same arrays
+    # after a random event stream (bursts, quiet steps, consequents without antecedents).
+    from qlap_runtime.qlap import contingency
+    from qlap_runtime.qlap.perception import EventIndex
+    from qlap_runtime.qlap.variables import VariableTable
+    from tests.qlap.toyworld import Spec
+
+    table = VariableTable.from_specs([
+        Spec("u", "motor", -1.0, 1.0), Spec("x", "magnitude"),
+        Spec("n", "nominal", values=("a", "b", "c"))])
+    index = EventIndex(table, [5 if v.kind.name == "MAGNITUDE" else 3 for v in table])
+
+    def run(compiled: bool) -> list:
+        with monkeypatch.context() as m:
+            if not compiled:
+                m.setattr(contingency, "kernels", lambda: None)
+            ps = contingency.PairStatistics(index, 4)
+            rng = np.random.default_rng(1)
+            for t in range(3, 600):
+                n = int(rng.choice([0, 0, 1, 2, 3]))
+                ids = np.sort(rng.choice(index.n_events, size=n, replace=False)).astype(np.int64)
+                ps.update(t, ids)
+            return [a.tobytes() for a in (ps.occurrences, ps.soon_given, ps.soon_steps,
+                                          ps.last_cons, ps.win_t, ps.win_ids)] + [ps.steps]
+
+    assert run(True) == run(False)
