@@ -25,8 +25,8 @@ _tried = False
 
 def kernels() -> SimpleNamespace | None:
     """The compiled functions (``vi_sweeps``, ``dyna``, ``sarsa``, ``context_counts``,
-    ``bisimilar``, ``sequence_bounds``, ``quantize_row``, ``events_of``, ``pairs_update``),
-    or None without numba."""
+    ``bisimilar``, ``sequence_bounds``, ``quantize_row``, ``events_of``, ``pairs_update``,
+    ``value_iteration``), or None without numba."""
     global _compiled, _tried
     if not _tried:
         _tried = True
@@ -37,14 +37,18 @@ def kernels() -> SimpleNamespace | None:
         except ImportError:                               # pragma: no cover - a dependency
             return None
         jit = numba.njit(cache=True, fastmath=False, nogil=True)
-        global _row_classes
-        _row_classes = jit(row_classes)                # called by bisimilar, compiled too
+        global _row_classes, _bisimilar, _vi_sweeps, _sweep_table_k
+        _row_classes = jit(row_classes)                # called by the kernels below, compiled
+        _bisimilar = jit(bisimilar)
+        _vi_sweeps = jit(vi_sweeps)
+        _sweep_table_k = jit(_sweep_table)
         _compiled = SimpleNamespace(vi_sweeps=jit(vi_sweeps), dyna=jit(dyna), sarsa=jit(sarsa),
                                     context_counts=jit(context_counts),
                                     bisimilar=jit(bisimilar),
                                     sequence_bounds=jit(sequence_bounds),
                                     quantize_row=jit(quantize_row), events_of=jit(events_of),
-                                    pairs_update=jit(pairs_update))
+                                    pairs_update=jit(pairs_update),
+                                    value_iteration=jit(value_iteration))
     return _compiled
 
 
@@ -395,3 +399,120 @@ def pairs_update(step: int, k: int, first_step: int, event_ids: np.ndarray,
         for r in range(s, total):
             soon_given[new_ids[r], c] += 1
     return new_t, new_ids
+
+
+_bisimilar = bisimilar
+_vi_sweeps = vi_sweeps
+"""What :func:`value_iteration` calls, compiled by :func:`kernels`."""
+
+
+def _sweep_table(q: np.ndarray, er: np.ndarray, p1: np.ndarray, p2: np.ndarray,
+                 n1: np.ndarray, n2: np.ndarray, app: np.ndarray, g: float, tol: float,
+                 max_sweeps: int) -> None:
+    """:func:`~.mdp._sweeps` in place on ``q`` (rows × actions, C order): the applicable
+    pairs in row-major order, each row's run of pairs for V(s)."""
+    n_s, n_a = app.shape
+    m = 0
+    for s in range(n_s):
+        for a in range(n_a):
+            if app[s, a]:
+                m += 1
+    e = np.empty(m)
+    a1 = np.empty(m)
+    a2 = np.empty(m)
+    t1 = np.empty(m, dtype=np.int64)
+    t2 = np.empty(m, dtype=np.int64)
+    qa = np.empty(m)
+    starts = np.empty(n_s, dtype=np.int64)
+    live = np.empty(n_s, dtype=np.int64)
+    n_runs = 0
+    i = 0
+    for s in range(n_s):
+        first = True
+        for a in range(n_a):
+            if app[s, a]:
+                if first:
+                    starts[n_runs] = i
+                    live[n_runs] = s
+                    n_runs += 1
+                    first = False
+                e[i] = er[s, a]
+                a1[i] = p1[s, a]
+                a2[i] = p2[s, a]
+                t1[i] = n1[s, a]
+                t2[i] = n2[s, a]
+                qa[i] = q[s, a]
+                i += 1
+    out = _vi_sweeps(qa, e, a1, a2, t1, t2, starts[:n_runs], live[:n_runs], n_s, g, tol,
+                     max_sweeps)
+    i = 0
+    for s in range(n_s):
+        for a in range(n_a):
+            if app[s, a]:
+                q[s, a] = out[i]
+                i += 1
+
+
+def value_iteration(p1: np.ndarray, next1: np.ndarray, next2: np.ndarray, app: np.ndarray,
+                    goal: np.ndarray, r_goal: float, r_step: float, g: float, tol: float,
+                    max_sweeps: int) -> np.ndarray:
+    """:func:`~.mdp.value_iteration` whole: R of eq. 5.5 (``r_goal`` into a goal state, else
+    ``r_step``), E[R] = p1·R1 + (1 − p1)·R2, the bisimulation quotient (:func:`bisimilar` on
+    the bits of E[R] and p1 of the applicable pairs) and the sweeps on one state per class,
+    copied back to every state."""
+    n_s, n_a = app.shape
+    p2 = np.empty((n_s, n_a))
+    er = np.empty((n_s, n_a))
+    er_sig = np.empty((n_s, n_a))
+    p1_sig = np.empty((n_s, n_a))
+    for s in range(n_s):
+        for a in range(n_a):
+            r1 = r_goal if goal[next1[s, a]] else r_step
+            r2 = r_goal if goal[next2[s, a]] else r_step
+            p2[s, a] = 1.0 - p1[s, a]
+            er[s, a] = p1[s, a] * r1 + p2[s, a] * r2
+            if app[s, a]:
+                er_sig[s, a] = er[s, a]
+                p1_sig[s, a] = p1[s, a]
+            else:
+                er_sig[s, a] = np.nan
+                p1_sig[s, a] = 0.0
+    init = np.empty((n_s, 2 * n_a), dtype=np.int64)
+    init[:, :n_a] = er_sig.view(np.int64)
+    init[:, n_a:] = p1_sig.view(np.int64)
+    cls, reps = _bisimilar(init, next1, next2)
+    k = reps.size
+    if k == n_s:
+        q = np.empty((n_s, n_a))
+        for s in range(n_s):
+            for a in range(n_a):
+                q[s, a] = 0.0 if app[s, a] else -np.inf
+        _sweep_table_k(q, er, p1, p2, next1, next2, app, g, tol, max_sweeps)
+        return q
+    qr = np.empty((k, n_a))
+    er_r = np.empty((k, n_a))
+    p1_r = np.empty((k, n_a))
+    p2_r = np.empty((k, n_a))
+    n1_r = np.empty((k, n_a), dtype=np.int64)
+    n2_r = np.empty((k, n_a), dtype=np.int64)
+    app_r = np.empty((k, n_a), dtype=np.bool_)
+    for c in range(k):
+        s = reps[c]
+        for a in range(n_a):
+            qr[c, a] = 0.0 if app[s, a] else -np.inf
+            er_r[c, a] = er[s, a]
+            p1_r[c, a] = p1[s, a]
+            p2_r[c, a] = p2[s, a]
+            n1_r[c, a] = cls[next1[s, a]]
+            n2_r[c, a] = cls[next2[s, a]]
+            app_r[c, a] = app[s, a]
+    _sweep_table_k(qr, er_r, p1_r, p2_r, n1_r, n2_r, app_r, g, tol, max_sweeps)
+    q = np.empty((n_s, n_a))
+    for s in range(n_s):
+        for a in range(n_a):
+            q[s, a] = qr[cls[s], a]
+    return q
+
+
+_sweep_table_k = _sweep_table
+"""What :func:`value_iteration` calls for the sweeps, compiled by :func:`kernels`."""

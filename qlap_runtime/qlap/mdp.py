@@ -708,6 +708,14 @@ def value_iteration(model: TransitionModel, params: Params) -> np.ndarray:
     computed once and copied back — the same result as sweeping every state, ~15× fewer states
     in grown plans (variables of C and C_o that the transitions do not distinguish).
     """
+    k = kernels()
+    if k is not None and model.n_actions:      # all of the below, compiled (the same numbers)
+        return k.value_iteration(
+            np.ascontiguousarray(model.p1, dtype=float), np.ascontiguousarray(model.next1),
+            np.ascontiguousarray(model.next2), np.ascontiguousarray(model.applicable),
+            np.ascontiguousarray(model.goal), float(params.goal_reward + params.step_reward),
+            float(params.step_reward), float(params.gamma), float(params.value_iteration_tol),
+            int(params.value_iteration_max_sweeps))
     # eq. 5.6 with the constant parts of :meth:`TransitionModel.backup` taken out of the loop.
     r1, r2 = model.rewards(params)
     p1 = model.p1
