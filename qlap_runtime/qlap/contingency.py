@@ -17,7 +17,7 @@ from collections import deque
 
 import numpy as np
 
-from .kernels import kernels
+from .kernels import loaded_kernels
 from .perception import EventIndex
 from .probability import prob_above_many
 
@@ -48,7 +48,7 @@ class PairStatistics:
         if self.first_step is None:
             self.first_step = step
         k = self.k
-        kern = kernels()
+        kern = loaded_kernels()
         if kern is not None and event_ids.dtype == np.int64 and self.win_t.dtype == np.int64 \
                 and self.win_ids.dtype == np.int64:
             # The same counts, compiled (kernels.pairs_update).

@@ -6,9 +6,10 @@ no transcendental function, no reordered sum), so its results are bit for bit nu
 tests in ``tests/qlap/test_mdp.py`` pin each one against the numpy path. numpy's per-call
 overhead dominated these loops (value iteration runs ~130 sweeps over a few hundred pairs).
 
-They are compiled by numba on first use (:func:`kernels`, cached on disk), so importing the
-agent stays as fast as before; without numba (or with ``QLAP_NO_NUMBA=1``) the callers keep
-their numpy code.
+They are compiled by numba on first use (:func:`kernels`, cached on disk: the first run on a
+machine compiles them, ~15 s of CPU spread over its first batches), so importing the agent
+and its first steps stay as fast as before (the per-step callers use :func:`loaded_kernels`);
+without numba (or with ``QLAP_NO_NUMBA=1``) the callers keep their numpy code.
 """
 
 from __future__ import annotations
@@ -21,6 +22,13 @@ import numpy as np
 
 _compiled: SimpleNamespace | None = None
 _tried = False
+
+
+def loaded_kernels() -> SimpleNamespace | None:
+    """:func:`kernels` if already loaded, else None without loading them: for the per-step
+    callers (perception, pair counts), so that a run's first steps do not wait for numba's
+    import (the first batch that needs a kernel loads them)."""
+    return _compiled
 
 
 def kernels() -> SimpleNamespace | None:

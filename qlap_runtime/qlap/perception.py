@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .kernels import kernels
+from .kernels import loaded_kernels
 from .params import Params
 from .quantity import Landmark, QuantitySpace
 from .variables import Event, Kind, VariableTable
@@ -358,7 +358,7 @@ class Perception:
         # Direction of change per second (§3.1, Tables 8.7–8.10).
         x[self._change_idx] = (x[self._change_src] - self.prev_x[self._change_src]) \
             / self.params.step_seconds
-        k = kernels()
+        k = loaded_kernels()
         if finite and self._all_seen:
             if k is not None:                   # the same values, compiled
                 q = k.quantize_row(x, self._ordered_idx, self._ub, self._lb, self._nlm,

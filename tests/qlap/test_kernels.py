@@ -171,7 +171,7 @@ def test_perceive_compiled_is_the_numpy_one(monkeypatch: pytest.MonkeyPatch) -> 
     def run(compiled: bool) -> list:
         with monkeypatch.context() as m:
             if not compiled:
-                m.setattr(per, "kernels", lambda: None)
+                m.setattr(per, "loaded_kernels", lambda: None)
             p = per.Perception(table, P)
             p.add_landmark(table.index("x"), Landmark(0.0, 0.5))
             p.add_landmark(table.index("x"), Landmark(2.0, 2.0))
@@ -206,7 +206,7 @@ def test_pair_statistics_compiled_are_the_numpy_ones(monkeypatch: pytest.MonkeyP
     def run(compiled: bool) -> list:
         with monkeypatch.context() as m:
             if not compiled:
-                m.setattr(contingency, "kernels", lambda: None)
+                m.setattr(contingency, "loaded_kernels", lambda: None)
             ps = contingency.PairStatistics(index, 4)
             rng = np.random.default_rng(1)
             for t in range(3, 600):
