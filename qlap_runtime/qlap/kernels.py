@@ -1,10 +1,13 @@
-"""Compiled loops for the plans' value computations (§5.2.2: value iteration, Dyna, Sarsa(λ)).
+"""Compiled loops for the agent's numeric work (numba): value iteration with its bisimulation
+quotient, Dyna and Sarsa(λ) (§5.2.2), Algorithm 3's counts (§4.2.1), Algorithm 4's gain bounds
+(§4.4.1), the pairwise contingency counts (§4.1.2) and a step's quantization and events (§3.2).
 
-Each function here is the loop of a numpy computation in :mod:`.mdp`, written element by
-element with the same floating-point operations in the same order (products, sums, a maximum:
-no transcendental function, no reordered sum), so its results are bit for bit numpy's; the
-tests in ``tests/qlap/test_mdp.py`` pin each one against the numpy path. numpy's per-call
-overhead dominated these loops (value iteration runs ~130 sweeps over a few hundred pairs).
+Each function here is the loop of a numpy computation, written element by element with the
+same floating-point operations in the same order (products, sums, maxima, whole-number counts:
+no transcendental function — entropies come from a table of numpy's values — and no reordered
+sum), so its results are bit for bit numpy's; ``tests/qlap/test_kernels.py`` pins each one
+against the numpy path, which the callers keep. numpy's per-call overhead dominated these
+loops (value iteration runs ~130 sweeps over a few hundred pairs; a DBN has 200 activations).
 
 They are compiled by numba on first use (:func:`kernels`, cached on disk: the first run on a
 machine compiles them, ~15 s of CPU spread over its first batches), so importing the agent
@@ -50,9 +53,9 @@ def kernels() -> SimpleNamespace | None:
         _bisimilar = jit(bisimilar)
         _vi_sweeps = jit(vi_sweeps)
         _sweep_table_k = jit(_sweep_table)
-        _compiled = SimpleNamespace(vi_sweeps=jit(vi_sweeps), dyna=jit(dyna), sarsa=jit(sarsa),
+        _compiled = SimpleNamespace(vi_sweeps=_vi_sweeps, dyna=jit(dyna), sarsa=jit(sarsa),
                                     context_counts=jit(context_counts),
-                                    bisimilar=jit(bisimilar),
+                                    bisimilar=_bisimilar,
                                     sequence_bounds=jit(sequence_bounds),
                                     quantize_row=jit(quantize_row), events_of=jit(events_of),
                                     pairs_update=jit(pairs_update),
