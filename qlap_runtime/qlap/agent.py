@@ -31,6 +31,7 @@ from .actions import (
     targeted,
 )
 from .babble import Babbler
+from .context import update_contexts_many
 from .curiosity import (
     IACChoice,
     action_weight,
@@ -58,7 +59,7 @@ from .planner import (
     Plan,
     PlanGroups,
     PlanTooLarge,
-    creates_cycle,
+    closes_cycle,
     dbn_rel_state,
     plan_entries,
 )
@@ -368,10 +369,16 @@ class Agent:
                      dyna=not self.params.ablations.no_dyna)
 
     def _update_plan_contexts(self) -> None:
-        """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4)."""
+        """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4).
+
+        The plans' searches (Algorithm 3, :meth:`Plan.update_context`) are independent: they
+        are made together (:func:`~.context.update_contexts_many`, the same answers), then
+        each plan follows its answer in order of id."""
         sizes = self._sizes()
         perception = self.learner.perception
         quantize = perception.quantize_columns
+        searches: list[tuple[Plan, list[int], object, tuple, np.ndarray, np.ndarray]] = []
+        todo: list[tuple[Plan, list[int], object, int]] = []
         for pid in sorted(self.plans):
             plan = self.plans[pid]
             dbn = self.learner.dbns[plan.dbn_id]
@@ -380,8 +387,32 @@ class Agent:
             # of the candidates and of C_o (landmarks of other variables leave them unchanged).
             version = perception.landmark_signature(sorted({*cands, *plan.context_o}))
             plan.recount(quantize, sizes, version)
+            search = plan.context_search(cands, version)
+            todo.append((plan, cands, version, len(searches) if search is not None else -1))
+            if search is not None:
+                searches.append((plan, cands, version, *search))
+        answers: list[tuple[int, ...] | None] = []
+        if searches:
+            # As StoredActivations.quantized for each: the variables searched, quantized at
+            # once as columns 0, 1, … in order of index (an increasing renumbering).
+            cols = sorted({v for _, cands, *_ in searches for v in cands}
+                          | {v for plan, *_ in searches for v in plan.context_o})
+            at = {v: i for i, v in enumerate(cols)}
+            Q_all = perception.quantize_values(
+                np.concatenate([X[:, cols] for *_, X, _ in searches]), cols)
+            problems = []
+            row = 0
+            for plan, cands, _, _, X, ok in searches:
+                problems.append((tuple(at[v] for v in plan.context_o), [at[v] for v in cands],
+                                 Q_all[row:row + len(X)], ok))
+                row += len(X)
+            answers = [None if a is None else tuple(cols[i] for i in a) for a in
+                       update_contexts_many(problems, [sizes[v] for v in cols], self.params)]
+        for plan, _, version, j in todo:
+            dbn = self.learner.dbns[plan.dbn_id]
             before = plan.context_o
-            if plan.update_context(cands, quantize, sizes, version) and \
+            if j >= 0 and plan.context_found(searches[j][3], answers[j], quantize, sizes,
+                                             version) and \
                     plan_entries(plan.context_o, dbn, sizes) > self.params.max_plan_entries:
                 plan.context_o = before                 # too large a state space: keep C_o
                 plan.recount(quantize, sizes, version)
@@ -449,13 +480,15 @@ class Agent:
             ranked.append(((-overall, st.brel is None, -(st.brel or 0.0), st.entropy, dbn_id),
                            dbn))
         ranked.sort(key=lambda r: r[0])
-        edges = self._plan_edges()
+        adj: dict[ActionKey, list[ActionKey]] = {}              # the edges of _plan_edges
+        for a, b in self._plan_edges():
+            adj.setdefault(a, []).append(b)
         for _, dbn in ranked:
             key = (dbn.consequent.var, dbn.consequent.value)
             if not self._antecedent_achievable(dbn):
                 continue
             edge = (key, (dbn.antecedent.var, dbn.antecedent.value))
-            if creates_cycle(edges, edge):
+            if closes_cycle(adj, edge):
                 continue                                              # §6.2.2 criterion 2
             mine = [pl for pl in self.plans.values() if pl.action == key]
             if dbn.kind != CHANGE:
@@ -472,8 +505,8 @@ class Agent:
                     continue
                 if slots.free <= 0 and slots.replaceable is not None:
                     self._remove_plan(change_plans[slots.replaceable].id)
-            if self._add_plan(dbn, t) is not None:
-                edges.add(edge)
+            if self._add_plan(dbn, t) is not None and edge[1] not in adj.get(edge[0], ()):
+                adj.setdefault(edge[0], []).append(edge[1])
 
     def _reliable_at(self, dbn: DBN, theta: float) -> bool:
         st = model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), self.params)
@@ -656,14 +689,21 @@ class Agent:
         if p.discontinuity:
             return out, weights
         groups = self._plan_groups()
-        q_list = p.q.tolist()
+        q_list = self._q_list(p)
         # Actions not achieved now (:meth:`_achieved`) with a usable plan (known state, from
         # the current side: :meth:`_usable_plans`), tested for all plans at once.
         found, usable = groups.usable(p.q, self._magnitude_vars())
+        cache = self.__dict__.setdefault("_iac_cache", {})
         for g in found:
             key = groups.keys[g]
             stats = self.actions[key]
-            w = self._iac_weight(stats)
+            # _iac_weight's cached value, looked up here (this loop runs over every action)
+            hit = cache.get(id(stats))
+            if hit is not None and hit[0] is stats and hit[1] is stats.history \
+                    and hit[2] == stats.calls and hit[3] == len(stats.history):
+                w = hit[4]
+            else:
+                w = self._iac_weight(stats)
             if w is None:                 # fewer than 50 calls: eq. 6.2 with the chosen plan
                 plans = [pl for pl, r in zip(groups.groups[g], groups.rows[g], strict=True)
                          if usable[r]]
@@ -702,7 +742,28 @@ class Agent:
     # the call list (Algorithms 6 and 7)
     # ------------------------------------------------------------------------------------------
     def _achieved(self, key: ActionKey, p: Percept) -> bool:
-        return int(p.q[key[0]]) == key[1]
+        return self._q_list(p)[key[0]] == key[1]
+
+    def _q_list(self, p: Percept) -> list[int]:
+        """``p.q.tolist()`` (Python ints), kept for the percept of the step (the executor
+        reads single values of it many times per step)."""
+        cached = self.__dict__.get("_q_cache")
+        if cached is not None and cached[0] is p:
+            return cached[1]
+        q = p.q.tolist()
+        self._q_cache = (p, q)
+        return q
+
+    def _self_sorted(self) -> tuple[int, ...]:
+        """``sorted(self.self_vars)``, kept while ``self_vars`` is the same set of the same
+        size (:meth:`_update_self` assigns a new one)."""
+        cached = self.__dict__.get("_self_cache")
+        sv = self.self_vars
+        if cached is not None and cached[0] is sv and cached[1] == len(sv):
+            return cached[2]
+        out = tuple(sorted(sv))
+        self._self_cache = (sv, len(sv), out)
+        return out
 
     def _iac_weight(self, stats: ActionStats) -> float | None:
         """:func:`~.curiosity.iac_weight` of an action, cached until its next record (the
@@ -724,7 +785,7 @@ class Agent:
         variable without a value) and magnitude plans from the current side."""
         if p.discontinuity:
             return []        # the state is not fully known (no direction of change is defined)
-        full = p.q.tolist()
+        full = self._q_list(p)
         known = sorted((pl for pl in plans
                         if pl.space is not None and pl.space.index_from_full(full) is not None),
                        key=lambda pl: pl.id)
@@ -769,13 +830,14 @@ class Agent:
             dbn = dbns[plan.dbn_id]
             ante = dbn.antecedent
             excluded.append((ante.var, ante.value) in in_list)
-            cell = _cell_of(dbn.context, q, sizes)
+            cell = _cell_of(dbn.context, q, sizes) if dbn.context else 0
             # rel(r, s) of the one cell (eq. B.1); a cell without counts (−1) has none
             sc, fc = (float(dbn.cpt_s[cell]), float(dbn.cpt_f[cell])) \
                 if 0 <= cell < len(dbn.cpt_s) else (0.0, 0.0)
             rel_rs = (sc + prior) / (sc + fc + 2 * prior)
-            rel_os.append(plan.rel_state(_cell_of(plan.context_o, q, sizes)))
-            w.append(plan_weight(rel_rs, rel_os[-1]))
+            rel_o = plan.rel_state(_cell_of(plan.context_o, q, sizes) if plan.context_o else 0)
+            rel_os.append(rel_o)
+            w.append(plan_weight(rel_rs, rel_o))
         return w, excluded, rel_os
 
     def _call(self, key: ActionKey, p: Percept, practised: bool = False) -> str:
@@ -813,7 +875,7 @@ class Agent:
 
     def _plan_state(self, plan: Plan, p: Percept) -> int | None:
         assert plan.space is not None
-        return plan.space.index_from_full(p.q)
+        return plan.space.index_from_full(self._q_list(p))
 
     def _next_sub(self, i: int, p: Percept, first: bool = False) -> str:
         """Choose and call the plan's next action by its policy (ε-greedy, §6.1.3)."""
@@ -932,7 +994,8 @@ class Agent:
         if t - f.started >= self.params.option_max_steps:
             return True
         s = self._plan_state(plan, p)
-        sig = (s, *(int(p.q[v]) for v in sorted(self.self_vars)))
+        q = self._q_list(p)
+        sig = (s, *[q[v] for v in self._self_sorted()])
         if sig != f.last_sig:
             f.last_sig, f.last_change = sig, t
             return False

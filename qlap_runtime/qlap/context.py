@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from .dbn import ModelStats, context_cells, counts_by_cell, model_stats
+from .kernels import kernels
 from .params import Params
 from .probability import binary_entropy_array, dbn_entropy
 
@@ -119,6 +120,7 @@ class StoredActivations:
         variable, −1 where unknown or not needed); ``ok``: their success labels."""
         self.Q, self.ok = Q, ok
         self.okf = ok.astype(float)
+        self.ok_int = ok.astype(np.int64)
         self.sizes = np.asarray(sizes, dtype=np.int64)
         self.params = params
 
@@ -134,6 +136,11 @@ class StoredActivations:
         return cls(Q, ok, sizes, params)
 
     def evaluate(self, ctx: tuple[int, ...]) -> ModelStats:
+        if not ctx:
+            # One cell: the counts the bincounts below give (whole numbers as floats).
+            k = int(np.count_nonzero(self.ok))
+            return model_stats(np.array([float(k)]), np.array([float(len(self.ok) - k)]), 0,
+                               self.params)
         sizes = [int(self.sizes[v]) for v in ctx]
         n_cells = int(np.prod(sizes)) if ctx else 1
         cells = context_cells([self.Q[:, v] for v in ctx], sizes) if ctx else \
@@ -202,3 +209,135 @@ class StoredActivations:
         cells = (lo[kv].T * so + np.maximum(Qo, 0)) * phi[kv] + hi[kv].T
         good = ~(bad[:, None] | (Qo < 0))
         return cells, good, phi[0] * so
+
+
+ContextProblem = tuple[tuple[int, ...], Sequence[int], np.ndarray, np.ndarray]
+"""One Algorithm 3 search: ``(current context, candidates, Q, ok)`` (Q and ok as for
+:class:`StoredActivations`)."""
+
+
+def update_contexts_many(problems: Sequence[ContextProblem], sizes,
+                         params: Params) -> list[tuple[int, ...] | None]:
+    """:func:`update_context` with :meth:`StoredActivations.choose` for every problem, the
+    same answers, with each round's counting done for all problems at once (Algorithm 3 on
+    all of a batch's DBNs, §4.2.1, App. D.1: one DBN's arrays are too small for numpy's
+    per-call overhead to pay off).
+
+    Each problem's round counts its rows in its own bins of one ``bincount`` (the same sums
+    of the same weights in the same order as its own call), the entropies and reliabilities
+    are the same element-wise operations, and each problem's choice and statistics are
+    then made from its own slice of the counts exactly as :meth:`StoredActivations.choose`
+    makes them.
+    """
+    p = params
+    acts = [StoredActivations(Q, ok, sizes, p) for _, _, Q, ok in problems]
+    scores: list[dict[tuple[int, ...], ModelStats]] = []
+    r1: list[ModelStats] = []
+    for a in acts:                                  # the empty context: one cell
+        r = a.evaluate(())
+        scores.append({(): r})
+        r1.append(r)
+    ctx: list[tuple[int, ...]] = [() for _ in problems]
+    active = list(range(len(problems))) if p.max_context_vars > 0 else []
+    kern = kernels() if problems else None
+    if kern is not None:
+        # The compiled count (kernels.context_counts) reads all problems' rows at once.
+        Q_all = np.ascontiguousarray(np.concatenate([a.Q for a in acts]), dtype=np.int64)
+        ok_all = np.concatenate([a.ok_int for a in acts])
+        row_ptr = np.zeros(len(acts) + 1, dtype=np.int64)
+        np.cumsum([len(a.ok) for a in acts], out=row_ptr[1:])
+        size_arr = np.asarray(sizes, dtype=np.int64)
+    while active:
+        rounds: list[tuple[int, np.ndarray, bool]] = []
+        for i in active:
+            options = [v for v in problems[i][1] if v not in ctx[i]]
+            if options:
+                rounds.append((i, np.asarray(options, dtype=np.int64),
+                               r1[i].reliable or p.ablations.entropy_only))
+        if not rounds:
+            break
+        # Each option's segment of cells (as many as the values of its context), problem
+        # after problem: one count for all.
+        seg_n = np.concatenate([acts[i].sizes[opts] * (int(np.prod(acts[i].sizes[list(
+            ctx[i])])) if ctx[i] else 1) for i, opts, _ in rounds])
+        offs = np.zeros(len(seg_n), dtype=np.int64)
+        np.cumsum(seg_n[:-1], out=offs[1:])
+        first_seg = np.zeros(len(rounds), dtype=np.int64)
+        np.cumsum([len(r[1]) for r in rounds[:-1]], out=first_seg[1:])
+        total = int(seg_n.sum())
+        if kern is not None:
+            sel = np.array([i for i, _, _ in rounds], dtype=np.int64)
+            opt_ptr = np.zeros(len(rounds) + 1, dtype=np.int64)
+            opt_ptr[1:] = [*first_seg[1:].tolist(), len(seg_n)]
+            ctx_lists = [ctx[i] for i, _, _ in rounds]
+            ctx_ptr = np.zeros(len(rounds) + 1, dtype=np.int64)
+            np.cumsum([len(c) for c in ctx_lists], out=ctx_ptr[1:])
+            sc, fc = kern.context_counts(
+                Q_all, ok_all, row_ptr[sel], row_ptr[sel + 1],
+                np.concatenate([o for _, o, _ in rounds]), opt_ptr, offs,
+                np.asarray([v for c in ctx_lists for v in c], dtype=np.int64), ctx_ptr,
+                size_arr, total)
+            s = sc.astype(float)
+            f = fc.astype(float)
+        else:
+            # Bin 2·cell + ok: the successes and failures of each cell as whole numbers, the
+            # values (as floats) of choose's weighted and unweighted bincounts and difference.
+            idx_parts = []
+            for (i, opts, _), s0 in zip(rounds, first_seg.tolist(), strict=True):
+                a = acts[i]
+                Qo = a.Q[:, opts]
+                so = a.sizes[opts]
+                if ctx[i]:
+                    cells, good, _ = a._cells_with(ctx[i], opts, Qo, so)
+                else:
+                    cells, good = Qo, Qo >= 0
+                idx_parts.append(((cells + offs[s0:s0 + len(opts)]) * 2
+                                  + a.ok_int[:, None])[good])
+            counts = np.bincount(np.concatenate(idx_parts), minlength=2 * total)
+            s = counts[1::2].astype(float)
+            f = counts[0::2].astype(float)
+        ent = [r[2] for r in rounds]
+        if any(ent):
+            tot = s + f
+            seg_tot = np.add.reduceat(tot, offs)
+            pe = (s + p.prior) / (tot + 2.0 * p.prior)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                terms = binary_entropy_array(pe) * (tot / np.repeat(seg_tot, seg_n))
+            approx = np.where(seg_tot > 0, np.add.reduceat(np.nan_to_num(terms), offs), 1.0)
+        if not all(ent):
+            rel = (s + p.prior) / (s + f + 2.0 * p.prior)
+            rel = np.where(s >= p.brel_min_successes, rel, -1.0)
+            seg_max = np.maximum.reduceat(rel, offs)
+        still = []
+        for (i, opts, by_entropy), s0 in zip(rounds, first_seg.tolist(), strict=True):
+            k = len(opts)
+            o = offs[s0:s0 + k]
+            n_cells = seg_n[s0:s0 + k]
+            if by_entropy:
+                ap = approx[s0:s0 + k]
+                short = np.flatnonzero(ap <= ap.min() + _TOL)
+                j = min((dbn_entropy(s[o[j]:o[j] + n_cells[j]], f[o[j]:o[j] + n_cells[j]],
+                                     p.prior), int(opts[j]), j) for j in short.tolist())[2]
+            else:
+                j = int(np.lexsort((opts, -seg_max[s0:s0 + k]))[0])
+            a0, b0 = int(o[j]), int(o[j] + n_cells[j])
+            v = int(opts[j])
+            r2 = model_stats(s[a0:b0], f[a0:b0], len(ctx[i]) + 1, p)
+            new_ctx = tuple(sorted((*ctx[i], v)))
+            scores[i].setdefault(new_ctx, r2)
+            if not is_model_improvement(r1[i], r2, p):
+                continue
+            ctx[i], r1[i] = new_ctx, r2
+            if len(new_ctx) < p.max_context_vars:
+                still.append(i)
+        active = still
+    out: list[tuple[int, ...] | None] = []
+    for i, (current, _, _, _) in enumerate(problems):
+        if tuple(sorted(current)) == ctx[i]:
+            out.append(None)
+            continue
+        r = scores[i].get(tuple(current))
+        if r is None:
+            r = acts[i].evaluate(tuple(current))
+        out.append(ctx[i] if is_model_improvement(r, r1[i], p) else None)
+    return out

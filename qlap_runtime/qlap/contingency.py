@@ -17,6 +17,7 @@ from collections import deque
 
 import numpy as np
 
+from .kernels import loaded_kernels
 from .perception import EventIndex
 from .probability import prob_above_many
 
@@ -47,6 +48,16 @@ class PairStatistics:
         if self.first_step is None:
             self.first_step = step
         k = self.k
+        kern = loaded_kernels()
+        if kern is not None and event_ids.dtype == np.int64 and self.win_t.dtype == np.int64 \
+                and self.win_ids.dtype == np.int64:
+            # The same counts, compiled (kernels.pairs_update).
+            self.win_t, self.win_ids = kern.pairs_update(
+                int(step), int(k), int(self.first_step), event_ids, self.win_t, self.win_ids,
+                self.occurrences, self.soon_given, self.soon_steps, self.last_cons,
+                self.index.cons_of_event)
+            self.steps += 1
+            return
         # Occurrences whose window [t, t+k) closed before this step become trials.
         if len(self.win_t) and self.win_t[0] <= step - k:
             cut = int(np.searchsorted(self.win_t, step - k, side="right"))

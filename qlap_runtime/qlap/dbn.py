@@ -41,13 +41,31 @@ class ModelStats:
     """All successes."""
 
 
+# A memo of model_stats (a pure function of the counts, |context| and four constants): a
+# batch scores the same counts again and again (Algorithm 3's empty context of a DBN whose
+# success rate did not move, the plans' conversions). Cleared when full.
+_STATS_MEMO_SIZE = 1 << 14
+_stats_memo: dict[tuple, ModelStats] = {}
+
+
 def model_stats(s: np.ndarray, f: np.ndarray, n_context: int, params: Params) -> ModelStats:
     """ModelStats from per-context-value success and failure counts."""
+    s_arr = np.asarray(s, dtype=float)
+    f_arr = np.asarray(f, dtype=float)
+    key = (s_arr.tobytes(), f_arr.tobytes(), s_arr.shape, n_context, params.prior,
+           params.brel_min_successes, params.theta_sr, params.beta_confidence)
+    hit = _stats_memo.get(key)
+    if hit is not None:
+        return hit
     brel, i = best_reliability(s, f, params.prior, params.brel_min_successes)
     reliable = brel is not None and prob_above(params.theta_sr, float(s[i]), float(f[i]),
                                                params.prior, params.beta_confidence)
-    return ModelStats(n_context, brel, dbn_entropy(s, f, params.prior), bool(reliable),
-                      int(s[i]) if i >= 0 else 0, int(np.sum(s)))
+    out = ModelStats(n_context, brel, dbn_entropy(s, f, params.prior), bool(reliable),
+                     int(s[i]) if i >= 0 else 0, int(np.sum(s)))
+    if len(_stats_memo) >= _STATS_MEMO_SIZE:
+        _stats_memo.clear()
+    _stats_memo[key] = out
+    return out
 
 
 class DBN:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels import kernels
 from .probability import binary_entropy_array
 
 
@@ -124,6 +125,138 @@ def _block_bounds(X: np.ndarray, ok: np.ndarray, Q: np.ndarray, n_values: int) -
     gain = np.where(valid, gain, -np.inf)
     seg_max = np.maximum.reduceat(gain.T.ravel(), flat_start)
     out[seg_var[keep], seg_q[keep]] = seg_max[keep]
+    return out
+
+
+GainItem = tuple[np.ndarray, np.ndarray, np.ndarray, "np.ndarray | None"]
+"""The arguments ``(X, ok, Q, groups)`` of one :func:`cut_gain_bounds` call."""
+
+# Elements (sequences × their padded length) per chunk of cut_gain_bounds_many: large enough
+# for numpy's per-call overhead to vanish, small enough for the temporaries to stay in cache.
+_CHUNK = 1 << 16
+
+
+def cut_gain_bounds_many(items: list[GainItem], n_values: int
+                         ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`cut_gain_bounds` of every item, bit for bit, computed together (§4.4.1 step 1
+    for all of a batch's DBNs at once: Algorithm 4 bounds every DBN's blocks, and one DBN's
+    arrays are too small for numpy's per-call overhead to pay off).
+
+    Every (item, group, column) is one sequence of values; sequences are padded with NaN
+    (sorted last, Q = −1: in no block) to a common length and bounded side by side by
+    :func:`_sequence_bounds`, which does per sequence the element-wise operations of
+    :func:`_block_bounds` per column (a block's counts are whole numbers, exact either way,
+    and no block spans two sequences).
+    """
+    outs: list[tuple[np.ndarray, np.ndarray]] = []
+    subsets: list[tuple[int, int, int, np.ndarray, np.ndarray, np.ndarray]] = []
+    for k, (X, ok, Q, groups) in enumerate(items):
+        n, V = X.shape
+        labels = np.unique(groups[groups >= 0]) if groups is not None else np.zeros(0, np.int64)
+        outs.append((np.full((V, n_values, 1 + len(labels)), -np.inf), labels))
+        if n < 2 or V == 0:
+            continue
+        subsets.append((n, k, 0, X, ok, Q))
+        for gi, g in enumerate(labels.tolist(), start=1):
+            assert groups is not None
+            rows = groups == g
+            m = int(np.count_nonzero(rows))
+            if m >= 2:
+                subsets.append((m, k, gi, X[rows], ok[rows], Q[rows]))
+    subsets.sort(key=lambda s: s[0])
+    i = 0
+    while i < len(subsets):
+        # A chunk: subsets in order of length, padded to the longest.
+        j, cols = i, 0
+        while j < len(subsets) and (j == i or (cols + subsets[j][3].shape[1])
+                                    * subsets[j][0] <= _CHUNK):
+            cols += subsets[j][3].shape[1]
+            j += 1
+        chunk = subsets[i:j]
+        R = chunk[-1][0]
+        Xc = np.full((cols, R), np.nan)
+        Yc = np.zeros((cols, R))
+        Qc = np.full((cols, R), -1, dtype=np.int64)
+        c = 0
+        for n, _, _, X, ok, Q in chunk:
+            V = X.shape[1]
+            Xc[c:c + V, :n] = X.T
+            Yc[c:c + V, :n] = ok
+            Qc[c:c + V, :n] = Q.T
+            c += V
+        bounds = _sequence_bounds(Xc, Yc, Qc, n_values)
+        c = 0
+        for _, k, gi, X, _, _ in chunk:
+            V = X.shape[1]
+            outs[k][0][:, :, gi] = bounds[c:c + V]
+            c += V
+        i = j
+    return outs
+
+
+_ENTROPY_TABLES: dict[int, np.ndarray] = {}
+
+
+def entropy_table(n_max: int) -> np.ndarray:
+    """``H[n, k]`` = H(k / n) in bits for 1 ≤ n ≤ ``n_max``, 0 ≤ k ≤ n (0 elsewhere), by
+    :func:`~.probability.binary_entropy_array` on the quotients k / n: the values it gives
+    for the same quotients anywhere (a block's counts are whole numbers up to its length)."""
+    H = _ENTROPY_TABLES.get(n_max)
+    if H is None:
+        n = np.arange(n_max + 1, dtype=float)[:, None]
+        k = np.arange(n_max + 1, dtype=float)[None, :]
+        ok = (n >= 1) & (k <= n)
+        p = np.divide(k, n, out=np.zeros((n_max + 1, n_max + 1)), where=ok)
+        H = np.where(ok, binary_entropy_array(p), 0.0)
+        H.flags.writeable = False
+        _ENTROPY_TABLES[n_max] = H
+    return H
+
+
+def _sequence_bounds(X: np.ndarray, Y: np.ndarray, Q: np.ndarray, n_values: int) -> np.ndarray:
+    """:func:`_block_bounds` with one sequence per row (its own success labels ``Y``, 0/1 as
+    floats) instead of one per column: shape (rows, n_values). The same element-wise
+    operations on the same values, in the transposed layout (compiled: kernels.sequence_bounds
+    with the entropies from :func:`entropy_table`)."""
+    C, R = X.shape
+    k = kernels()
+    if k is not None:
+        n_max = max(200, 1 << max(R - 1, 1).bit_length())        # a few tables at most
+        return k.sequence_bounds(np.ascontiguousarray(X), np.ascontiguousarray(Y),
+                                 np.ascontiguousarray(Q, dtype=np.int64), int(n_values),
+                                 entropy_table(n_max))
+    out = np.full((C, n_values), -np.inf)
+    order = np.argsort(X, axis=1, kind="stable")
+    Qs = np.take_along_axis(Q, order, axis=1)
+    ys = np.take_along_axis(Y, order, axis=1)
+    pos = np.arange(R)[None, :]
+    is_start = np.ones(Qs.shape, dtype=bool)
+    is_start[:, 1:] = Qs[:, 1:] != Qs[:, :-1]
+    is_end = np.ones(Qs.shape, dtype=bool)
+    is_end[:, :-1] = is_start[:, 1:]
+    start = np.maximum.accumulate(np.where(is_start, pos, 0), axis=1)
+    end = np.minimum.accumulate(np.where(is_end, pos, R)[:, ::-1], axis=1)[:, ::-1]
+    flat_start = np.flatnonzero(is_start.ravel())
+    seg_row = flat_start // R
+    seg_q = Qs.ravel()[flat_start]
+    keep = (seg_q >= 0) & (seg_q < n_values)
+    cw = np.broadcast_to(np.arange(1.0, R + 1.0)[None, :], Qs.shape)   # cumsum of ones
+    cy = np.cumsum(ys, axis=1)
+    zero = np.zeros((C, 1))
+    base_w = np.take_along_axis(np.hstack([zero, cw]), start, axis=1)
+    base_y = np.take_along_axis(np.hstack([zero, cy]), start, axis=1)
+    N = np.take_along_axis(cw, end, axis=1) - base_w
+    S = np.take_along_axis(cy, end, axis=1) - base_y
+    ln = cw - base_w
+    ls = cy - base_y
+    rn = N - ln
+    valid = (rn > 0) & (Qs >= 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gain = (binary_entropy_array(S / N) - ln / N * binary_entropy_array(ls / ln)
+                - rn / N * binary_entropy_array((S - ls) / rn))
+    gain = np.where(valid, gain, -np.inf)
+    seg_max = np.maximum.reduceat(gain.ravel(), flat_start)
+    out[seg_row[keep], seg_q[keep]] = seg_max[keep]
     return out
 
 

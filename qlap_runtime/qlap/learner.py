@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .context import StoredActivations, is_model_improvement, update_context
+from .context import is_model_improvement, update_contexts_many
 from .contingency import PairStatistics, WindowLearner
 from .dbn import CHANGE, DBN, MAGNITUDE, ModelStats, context_cells, counts_by_cell, model_stats
 from .delta import (
@@ -30,7 +30,13 @@ from .delta import (
     SetK,
     delta_version,
 )
-from .landmarks import EventBinner, best_cut, candidate_range, cut_gain_bounds, is_candidate
+from .landmarks import (
+    EventBinner,
+    best_cut,
+    candidate_range,
+    cut_gain_bounds_many,
+    is_candidate,
+)
 from .params import Params
 from .perception import EventIndex, Percept, Perception
 from .quantity import Landmark, QuantitySpace
@@ -139,7 +145,9 @@ class ModelLearner:
         percept = self.perception.perceive(step, x, copy=False, discontinuity=discontinuity)
         if discontinuity:
             self._drop_open_windows()
+        self._own = percept
         p = self._learn_step(percept)
+        self._own = None
         if not self.auto_batches:
             return p
         while self.pending_deltas and self.pending_deltas[0].apply_at <= step:
@@ -172,6 +180,8 @@ class ModelLearner:
                 dbn.pending.remove(entry)
                 self._resolve(dbn, entry[1], False)
         # Activations by antecedent events, then consequents (soon includes t itself, eq. 4.2).
+        if p is self._own:
+            self._remember_q(p)
         for e in p.events:
             for dbn in self._by_antecedent.get(e, ()):
                 entry = [t, p.x, False]
@@ -228,7 +238,39 @@ class ModelLearner:
         cell = self._cell_of(dbn, x)
         dbn.record(x, success, cell)
 
+    _own: Percept | None = None
+    _Q_HORIZON = 64
+
+    def _remember_q(self, p: Percept) -> None:
+        """Keep the qualitative values of the step's real vector ``p.x`` (as perceived here,
+        with the current landmarks) for :meth:`_cell_of`, which reads the context values of
+        the activations started at this step when they resolve: ``p.q[v]`` is
+        :meth:`value_of` ``(v, p.x[v])`` while the landmarks are these. Kept for
+        ``_Q_HORIZON`` steps (an activation resolved later is quantized again)."""
+        reg = self.__dict__.get("_x_q")
+        if reg is None:
+            reg = self._x_q = {}
+            self._x_q_order: deque[tuple[int, int]] = deque()
+        order = self._x_q_order
+        while order and order[0][0] < p.step - self._Q_HORIZON:
+            reg.pop(order.popleft()[1], None)
+        reg[id(p.x)] = (p.x, p.q.tolist(), self.perception.landmarks_version)
+        order.append((p.step, id(p.x)))
+
     def _cell_of(self, dbn: DBN, x: np.ndarray) -> int:
+        if not dbn.context:
+            return 0
+        reg = self.__dict__.get("_x_q")
+        hit = reg.get(id(x)) if reg is not None else None
+        if hit is not None and hit[0] is x and hit[2] == self.perception.landmarks_version:
+            q_list, sizes = hit[1], self.perception.events.sizes
+            cell = 0
+            for v in dbn.context:
+                q = q_list[v]
+                if q < 0:
+                    return -1
+                cell = cell * sizes[v] + q
+            return cell
         cell = 0
         for v in dbn.context:
             q = self.value_of(v, x[v])
@@ -457,6 +499,7 @@ class ModelLearner:
 
     def _update_contexts(self) -> None:
         signature = self.perception.landmark_signature
+        searched: list[tuple[int, tuple, list[int], np.ndarray, np.ndarray]] = []
         for dbn_id in sorted(self.dbns):
             dbn = self.dbns[dbn_id]
             if dbn.act_n < 1:
@@ -470,14 +513,33 @@ class ModelLearner:
             if dbn.context_unchanged == key:
                 continue
             X, ok = dbn.stored()
-            acts = StoredActivations.quantized(X, ok, self.perception.quantize_columns,
-                                               (*cands, *dbn.context),
-                                               self.perception.events.sizes, self.params)
-            new = update_context(dbn.context, cands, acts.evaluate, self.params, acts.choose)
+            searched.append((dbn_id, key, cands, X, ok))
+        if not searched:
+            return
+        # The searches are independent (a new context changes its DBN alone): all DBNs'
+        # activations are quantized in one call and searched together (update_contexts_many,
+        # the answers of update_context one by one), then applied in order of id. Only the
+        # variables searched are quantized, as columns 0, 1, … in order of index (an
+        # increasing renumbering: the same ties, choices and statistics).
+        cols = sorted({v for _, _, cands, _, _ in searched for v in cands}
+                      | {v for d_id, *_ in searched for v in self.dbns[d_id].context})
+        at = {v: i for i, v in enumerate(cols)}
+        Q_all = self.perception.quantize_values(
+            np.concatenate([X[:, cols] for *_, X, _ in searched]), cols)
+        all_sizes = self.perception.events.sizes
+        sizes = [all_sizes[v] for v in cols]
+        problems = []
+        row = 0
+        for dbn_id, _, cands, X, ok in searched:
+            problems.append((tuple(at[v] for v in self.dbns[dbn_id].context),
+                             [at[v] for v in cands], Q_all[row:row + len(X)], ok))
+            row += len(X)
+        answers = update_contexts_many(problems, sizes, self.params)
+        for (dbn_id, key, _, _, _), new in zip(searched, answers, strict=True):
             if new is not None:
-                self._do(SetContext(dbn_id, new))
+                self._do(SetContext(dbn_id, tuple(cols[i] for i in new)))
             else:
-                dbn.context_unchanged = key
+                self.dbns[dbn_id].context_unchanged = key
 
     def _delete_dbns(self, step: int) -> None:
         """§6.2.3 (old, never deterministic, not a plan) and §6.2.1 item 4."""
@@ -571,25 +633,39 @@ class ModelLearner:
         real_vars = [v for v, u in zip(real_vars, useful.tolist(), strict=True) if u]
         cols, prob = cols[useful], prob[useful]
         is_motor = np.array([v.kind is Kind.MOTOR for v in real_vars], dtype=bool)
-        for dbn_id in sorted(self.dbns):
-            dbn = self.dbns[dbn_id]
-            if dbn.kind != CHANGE or dbn.act_n < p.min_data_points:
-                continue
-            X, ok = dbn.stored()
+        stored = [(dbn_id, self.dbns[dbn_id]) for dbn_id in sorted(self.dbns)
+                  if self.dbns[dbn_id].kind == CHANGE
+                  and self.dbns[dbn_id].act_n >= p.min_data_points]
+        acts = [dbn.stored() for _, dbn in stored]
+        # The columns of every DBN quantized in one call (column by column the values of
+        # quantize_columns on each DBN's rows).
+        Q_cols = self.perception.quantize_values(
+            np.concatenate([X[:, cols] for X, _ in acts]), cols) if acts and len(cols) \
+            else np.zeros((sum(len(X) for X, _ in acts), len(cols)), dtype=np.int64)
+        row = 0
+        searched = []
+        for (dbn_id, dbn), (X, ok) in zip(stored, acts, strict=True):
             # App. D.2: a motor only as the DBN's antecedent, a magnitude only if it is not
             # (D.1: no motor in a context): only these columns are bounded; the others keep
             # a bound of −inf, so no landmark is sought on them.
             rel = np.flatnonzero(is_motor == (cols == dbn.antecedent.var))
             used = cols[rel]
             Q = np.full(X.shape, -1, dtype=np.int64)              # only the columns used
-            Q[:, used] = self.perception.quantize_columns(X, used)
+            Q[:, used] = Q_cols[row:row + len(X), rel]
+            row += len(X)
             cq = None
             if len(dbn.context) == 1:                                 # §4.4.1 footnote 2
                 cq = self.perception.quantize_columns(X, dbn.context)[:, 0]
-            # Blocks whose gain bound cannot pass eq. 4.17 are skipped: best_cut there could
-            # only give a cut that is_candidate rejects (cut_gain_bounds is column by column,
-            # so the columns bounded give the bounds they have among all columns).
-            sub, labels = cut_gain_bounds(X[:, used], ok, Q[:, used], n_values, cq)
+            searched.append((dbn_id, dbn, X, ok, Q, cq, rel, used))
+        # Blocks whose gain bound cannot pass eq. 4.17 are skipped: best_cut there could
+        # only give a cut that is_candidate rejects (cut_gain_bounds is column by column, so
+        # the columns bounded give the bounds they have among all columns). The bounds of
+        # all DBNs are computed at once (cut_gain_bounds_many: the same numbers).
+        all_bounds = cut_gain_bounds_many(
+            [(X[:, used], ok, Q[:, used], cq) for _, _, X, ok, Q, cq, _, used in searched],
+            n_values)
+        for (dbn_id, dbn, X, ok, Q, cq, rel, _), (sub, labels) in zip(searched, all_bounds,
+                                                                     strict=True):
             bound = np.full((len(cols), *sub.shape[1:]), -np.inf)
             bound[rel] = sub
             with np.errstate(invalid="ignore"):

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from .kernels import kernels
 from .params import Params
 from .variables import Event
 
@@ -77,7 +78,11 @@ class PlanStateSpace:
     @property
     def n_states(self) -> int:
         """|S| = Π |Q(v)|."""
-        return int(np.prod(self.sizes, dtype=np.int64))
+        cached = self.__dict__.get("_n_states")
+        if cached is None:
+            cached = int(np.prod(self.sizes, dtype=np.int64))
+            object.__setattr__(self, "_n_states", cached)
+        return cached
 
     @property
     def strides(self) -> tuple[int, ...]:
@@ -545,10 +550,12 @@ class TransitionModel:
         # Every entry of p1 is a copy of rel(r, s), of its action's rel(a) or 0.0, as in
         # build: gathered at once from the three.
         values = np.concatenate((rel_r, rel_a, _ZERO))
-        p1 = values.take(source)
-        p1.flags.writeable = False
-        model = TransitionModel(space, self.actions, self.spec, self.next1, p1, self.next2,
-                                self.applicable, self.goal)
+        # p1 is gathered when first read (:meth:`__getattr__`): a Dyna refresh reads only the
+        # applicable pairs' values below, and a large plan's table has ~10⁵ pairs.
+        model = TransitionModel(space, self.actions, self.spec, self.next1, None,  # type: ignore[arg-type]
+                                self.next2, self.applicable, self.goal)
+        object.__delattr__(model, "p1")
+        object.__setattr__(model, "_p1_lazy", (values, source))
         object.__setattr__(model, "_p1_recipe", recipe)
         object.__setattr__(model, "_p1_src", self.__dict__["_p1_src"])
         rewards = self.__dict__.get("_rewards")     # R does not depend on p1
@@ -562,6 +569,18 @@ class TransitionModel:
             object.__setattr__(model, "_applicable_pairs",
                                (key, (flat, a1, 1.0 - a1, r1, r2, n1, n2)))
         return model
+
+    def __getattr__(self, name: str) -> Any:
+        # Only for attributes not set: ``p1`` of a model from with_reliabilities, gathered
+        # once from its values and sources (the very values an eager gather gives).
+        if name == "p1":
+            lazy = self.__dict__.get("_p1_lazy")
+            if lazy is not None:
+                p1 = lazy[0].take(lazy[1])
+                p1.flags.writeable = False
+                object.__setattr__(self, "p1", p1)
+                return p1
+        raise AttributeError(f"{type(self).__name__!s} has no attribute {name!r}")
 
     def _p1_sources(self) -> tuple[np.ndarray, np.ndarray]:
         """Where each entry of ``p1`` comes from (cached), as indices into rel(r, s) (one per
@@ -635,7 +654,8 @@ def _rel_states(rel: RelModel, space: PlanStateSpace, vals: np.ndarray) -> np.nd
 
 
 def _check_probs(p: np.ndarray, name: str) -> np.ndarray:
-    if not np.all((p >= 0.0) & (p <= 1.0)):
+    # All in [0, 1] (NaN fails: min and max propagate it), in two reductions.
+    if p.size and not (p.min() >= 0.0 and p.max() <= 1.0):
         raise ValueError(f"{name} must lie in [0, 1]")
     return p
 
@@ -688,6 +708,14 @@ def value_iteration(model: TransitionModel, params: Params) -> np.ndarray:
     computed once and copied back — the same result as sweeping every state, ~15× fewer states
     in grown plans (variables of C and C_o that the transitions do not distinguish).
     """
+    k = kernels()
+    if k is not None and model.n_actions:      # all of the below, compiled (the same numbers)
+        return k.value_iteration(
+            np.ascontiguousarray(model.p1, dtype=float), np.ascontiguousarray(model.next1),
+            np.ascontiguousarray(model.next2), np.ascontiguousarray(model.applicable),
+            np.ascontiguousarray(model.goal), float(params.goal_reward + params.step_reward),
+            float(params.step_reward), float(params.gamma), float(params.value_iteration_tol),
+            int(params.value_iteration_max_sweeps))
     # eq. 5.6 with the constant parts of :meth:`TransitionModel.backup` taken out of the loop.
     r1, r2 = model.rewards(params)
     p1 = model.p1
@@ -724,6 +752,12 @@ def _sweeps(q: np.ndarray, expected_r: np.ndarray, p1: np.ndarray, p2: np.ndarra
     rows = flat // n_a if n_a else flat
     starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if flat.size else flat
     live = rows[starts]
+    k = kernels()
+    if k is not None:                       # the same sweeps, compiled (kernels.vi_sweeps)
+        q_flat[flat] = k.vi_sweeps(q_app, er, a1, a2, n1, n2, starts, live, q.shape[0],
+                                   float(g), float(params.value_iteration_tol),
+                                   int(params.value_iteration_max_sweeps))
+        return q
     v = np.zeros(q.shape[0])
     t1, t2 = np.empty_like(er), np.empty_like(er)
     for _ in range(params.value_iteration_max_sweeps):
@@ -760,6 +794,10 @@ def _bisimilar(applicable: np.ndarray, expected_r: np.ndarray, p1: np.ndarray,
     # NaN marks an inapplicable pair (E[R] of an applicable one is finite).
     sig[:, 1:n_a + 1] = np.where(applicable, expected_r, np.nan).view(np.int64)
     sig[:, n_a + 1:] = np.where(applicable, p1, 0.0).view(np.int64)
+    k = kernels()
+    if k is not None:                        # the same partition, compiled (kernels.bisimilar)
+        return k.bisimilar(np.ascontiguousarray(sig[:, 1:]), np.ascontiguousarray(next1),
+                           np.ascontiguousarray(next2))
     cls, reps = _row_classes(sig[:, 1:])
     while True:
         # An inapplicable pair leads to its own state (TransitionModel.build), whose class all
@@ -815,6 +853,10 @@ def dyna_sweep(q: np.ndarray, model: TransitionModel, params: Params) -> np.ndar
     # :meth:`TransitionModel.backup` on the applicable pairs only (the others are not used):
     # the same element-wise operations on the same values, about half the elements.
     flat, p1, p2, r1, r2, n1, n2 = _applicable_pairs(model, params)
+    k = kernels()
+    if k is not None and q.dtype == np.float64:   # the same sweep, compiled (kernels.dyna)
+        k.dyna(q, flat, p1, p2, r1, r2, n1, n2, float(params.gamma), float(a))
+        return q
     v = state_values(q)
     g = params.gamma
     target = p1 * (r1 + g * v[n1]) + p2 * (r2 + g * v[n2])
@@ -917,6 +959,13 @@ class SarsaLambda:
             self._check(s2, a2)
             target += p.gamma * float(self.q[s2, a2])
         delta = target - float(self.q[s, a])
+        k = kernels()
+        if k is not None and self.q.flags.c_contiguous and self.e.flags.c_contiguous \
+                and self.q.dtype == np.float64 and self.e.dtype == np.float64:
+            # The same update, compiled (kernels.sarsa): αδ and λγ as below.
+            k.sarsa(self.q, self.e, s, a, p.sarsa_alpha * delta, p.sarsa_lambda * p.gamma,
+                    a2 is None)
+            return delta
         self.e[s, a] = 1.0
         live = self.e > 0.0
         self.q[live] += p.sarsa_alpha * delta * self.e[live]

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .kernels import loaded_kernels
 from .params import Params
 from .quantity import Landmark, QuantitySpace
 from .variables import Event, Kind, VariableTable
@@ -27,6 +28,10 @@ from .variables import Event, Kind, VariableTable
 MAX_ABS_VALUE = 1e12
 """The largest magnitude a world's value may have: beyond it (±1e308, an exploded simulation)
 an observation is rejected like a NaN (derivatives and landmarks would overflow)."""
+
+
+_BY_COLUMN_ROWS = 2000
+"""Rows from which :meth:`Perception.quantize_columns` searches column by column."""
 
 
 class InvalidObservation(ValueError):
@@ -196,8 +201,13 @@ class Perception:
         its indices). Caches of results computed from these variables' qualitative values
         alone stay valid while the signature is equal (landmarks are immutable values), even
         when other variables gained landmarks (``landmarks_version`` changed)."""
-        spaces = self.spaces
-        return tuple(tuple(spaces[v].landmarks) for v in variables)
+        c = self.__dict__.get("_signature_cache")
+        if c is None or c[0] != self.landmarks_version or c[1] is not self.spaces:
+            # Each variable's landmarks as a tuple, kept until the landmarks change.
+            c = self._signature_cache = (self.landmarks_version, self.spaces,
+                                         [tuple(s.landmarks) for s in self.spaces])
+        per_var = c[2]
+        return tuple([per_var[v] for v in variables])
 
     def add_landmark(self, var: int, lm: Landmark) -> int:
         """Insert a landmark on a motor or magnitude variable; returns the split interval."""
@@ -253,14 +263,31 @@ class Perception:
         as :meth:`quantize_var` gives them column by column; shape (rows, len(cols))."""
         X = np.asarray(X, dtype=float)
         cols = np.asarray(cols, dtype=np.int64)
-        out = np.empty((X.shape[0], len(cols)), dtype=np.int64)
+        return self.quantize_values(X[:, cols], cols)
+
+    def quantize_values(self, Xc: np.ndarray, cols) -> np.ndarray:
+        """:meth:`quantize_columns` of a matrix whose column i holds values of variable
+        ``cols[i]`` (``X[:, cols]``): the same values."""
+        Xc = np.asarray(Xc, dtype=float)
+        cols = np.asarray(cols, dtype=np.int64)
+        out = np.empty((Xc.shape[0], len(cols)), dtype=np.int64)
         if not len(cols):
             return out
         pos = self._ordered_pos[cols]
         ordered = pos >= 0
-        if ordered.any():
+        if ordered.any() and Xc.shape[0] > _BY_COLUMN_ROWS:
+            # Many rows (a batch's activations at once): one binary search per column, j =
+            # #{ub < x} as below (the upper bounds increase), the same values.
+            for c in np.flatnonzero(ordered).tolist():
+                r = int(pos[c])
+                nl = int(self._nlm[r])
+                xo = Xc[:, c]
+                j = np.searchsorted(self._ub[r, :nl], xo, side="left")
+                at = (j < nl) & (xo >= self._lb[r, np.minimum(j, self._maxl - 1)])
+                out[:, c] = np.where(np.isnan(xo), -1, 2 * j + at)
+        elif ordered.any():
             ro = pos[ordered]
-            xo = X[:, cols[ordered]]
+            xo = Xc[:, ordered]
             nl = self._nlm[ro]
             ub = self._ub[ro]
             j = np.zeros(xo.shape, dtype=np.int64)
@@ -270,7 +297,7 @@ class Perception:
             at = (j < nl) & (xo >= lbj)
             out[:, ordered] = np.where(np.isnan(xo), -1, 2 * j + at)
         if not ordered.all():
-            xn = X[:, cols[~ordered]]
+            xn = Xc[:, ~ordered]
             out[:, ~ordered] = np.where(np.isnan(xn), -1, np.nan_to_num(xn, nan=-1))
         return out
 
@@ -331,12 +358,27 @@ class Perception:
         # Direction of change per second (§3.1, Tables 8.7–8.10).
         x[self._change_idx] = (x[self._change_src] - self.prev_x[self._change_src]) \
             / self.params.step_seconds
+        k = loaded_kernels()
         if finite and self._all_seen:
-            q = self._quantize_row(x)
+            if k is not None:                   # the same values, compiled
+                q = k.quantize_row(x, self._ordered_idx, self._ub, self._lb, self._nlm,
+                                   self._nominal_idx)
+            else:
+                q = self._quantize_row(x)
         else:
             q = self.quantize(x)
             self._all_seen = bool((q >= 0).all())
         prev = self.prev_q
+        if k is not None and prev.dtype == np.int64 and q.dtype == np.int64:
+            ev, val, dirs, ids = k.events_of(q, prev, self._is_mag, self.events.offset,
+                                             self.events.mult)
+            events = tuple(map(Event, ev.tolist(), val.tolist(), dirs.tolist()))
+            if remember:
+                self._remember(x, q)
+            else:
+                self.prev_x = x
+                self.prev_q = q
+            return Percept(step, x, q, events, ids, discontinuity)
         ev_vars = ((q != prev) & (q >= 0) & (prev >= 0)).nonzero()[0]
         if len(ev_vars):
             qv = q[ev_vars]

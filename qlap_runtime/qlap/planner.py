@@ -286,16 +286,33 @@ class Plan:
         ``version`` names the quantity spaces (their landmarks): a search that gave "no change"
         is not repeated while the stored calls, C_o, the candidates and ``version`` stay the
         same (Algorithm 3 is a function of them alone)."""
-        key = (self.calls, self.context_o, version, tuple(candidates))
-        if version is not None and self._context_unchanged == key:
+        search = self.context_search(candidates, version)
+        if search is None:
             return False
-        X, ok = self.stored_calls()
-        if not len(ok):
-            return False
+        X, ok = search[1], search[2]
         acts = StoredActivations.quantized(X, ok, quantize_columns,
                                            (*candidates, *self.context_o), sizes, self.params)
         new = update_context(self.context_o, candidates, acts.evaluate, self.params,
                              acts.choose)
+        return self.context_found(search[0], new, quantize_columns, sizes, version)
+
+    def context_search(self, candidates: list[int], version: object = None
+                       ) -> tuple[tuple, np.ndarray, np.ndarray] | None:
+        """What :meth:`update_context` searches: None when it would answer "no change"
+        without a search (the inputs of the last such answer, or no calls), else the inputs'
+        key and the stored calls (real states, outcomes)."""
+        key = (self.calls, self.context_o, version, tuple(candidates))
+        if version is not None and self._context_unchanged == key:
+            return None
+        X, ok = self.stored_calls()
+        if not len(ok):
+            return None
+        return key, X, ok
+
+    def context_found(self, key: tuple, new: tuple[int, ...] | None, quantize_columns, sizes,
+                      version: object = None) -> bool:
+        """The end of :meth:`update_context` once Algorithm 3 answered ``new`` (None: no
+        change) for the search of :meth:`context_search` with ``key``."""
         if new is None:
             self._context_unchanged = key
             return False
@@ -440,12 +457,19 @@ def dbn_rel_state(dbn: DBN, sizes, prior: float) -> Callable[[PlanStateSpace], n
 def creates_cycle(edges: set[tuple[tuple[int, int], tuple[int, int]]],
                   new: tuple[tuple[int, int], tuple[int, int]]) -> bool:
     """Would adding the edge consequent → antecedent close a cycle in the action graph (§6.2.2)?"""
-    src, dst = new
-    if src == dst:
-        return True
     adj: dict[tuple[int, int], list[tuple[int, int]]] = {}
     for a, b in edges:
         adj.setdefault(a, []).append(b)
+    return closes_cycle(adj, new)
+
+
+def closes_cycle(adj: Mapping[tuple[int, int], list[tuple[int, int]]],
+                 new: tuple[tuple[int, int], tuple[int, int]]) -> bool:
+    """:func:`creates_cycle` with the edges as adjacency lists (node -> successors), for a
+    caller that tests many edges on one graph."""
+    src, dst = new
+    if src == dst:
+        return True
     stack, seen = [dst], {dst}
     while stack:
         node = stack.pop()

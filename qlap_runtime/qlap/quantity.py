@@ -11,6 +11,7 @@ landmark. A point landmark has lb == ub.
 from __future__ import annotations
 
 import math
+from bisect import bisect_left
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,13 +56,21 @@ class QuantitySpace:
         return 2 * len(self.landmarks) + 1
 
     def value_of(self, x: float) -> int:
-        """The qualitative value of the real value ``x``."""
-        for i, lm in enumerate(self.landmarks):
-            if x < lm.lb:
-                return 2 * i
-            if x <= lm.ub:
-                return 2 * i + 1
-        return 2 * len(self.landmarks)
+        """The qualitative value of the real value ``x``: 2i below landmark i (x < lb_i),
+        2i + 1 on it (x ≤ ub_i), 2n above all (NaN too: no comparison holds)."""
+        lms = self.landmarks
+        c = self.__dict__.get("_bounds")
+        if c is None or c[0] is not lms or c[1] != len(lms):
+            # The bounds as lists, kept while the list of (immutable) landmarks is this one
+            # with as many elements (insert() only adds; a copy gets a new list).
+            c = self._bounds = (lms, len(lms), [m.lb for m in lms], [m.ub for m in lms])
+        if x != x:
+            return 2 * len(lms)
+        # j = #{ub < x}: landmarks below j are passed, as by the loop over them in order.
+        j = bisect_left(c[3], x)
+        if j < len(lms) and x >= c[2][j]:
+            return 2 * j + 1
+        return 2 * j
 
     def values_of(self, x: np.ndarray) -> np.ndarray:
         """Vectorised :meth:`value_of` (NaN gives −1)."""

@@ -26,5 +26,5 @@ def ring_rows(xs: np.ndarray, oks: np.ndarray, head: int, n: int
     cap = xs.shape[0]
     if n < cap:
         return xs[:n], oks[:n]
-    order = np.r_[head:cap, 0:head]
-    return xs[order], oks[order]
+    # Rows head..cap−1 then 0..head−1 (the values of xs[np.r_[head:cap, 0:head]], copied).
+    return np.concatenate((xs[head:], xs[:head])), np.concatenate((oks[head:], oks[:head]))

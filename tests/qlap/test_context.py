@@ -72,3 +72,52 @@ def test_update_context_finds_the_predictive_variable():
     assert update_context((7,), [3, 7], evaluate, P) is None        # already the best
     with pytest.raises(AssertionError):
         assert update_context((), [3], evaluate, P) is not None
+
+
+def test_update_contexts_many_by_hand():
+    # Two problems on the same 8 activations (vars 0, 1, 2 with 2 values each): var 1 is the
+    # success label, so the first (no context yet) gets (1,); the second already has it.
+    from qlap_runtime.qlap.context import update_contexts_many
+
+    Q = np.array([[0, 0, 1], [1, 1, 0], [0, 1, 1], [1, 0, 0],
+                  [0, 0, 0], [1, 1, 1], [0, 1, 0], [1, 0, 1]] * 4, dtype=np.int64)
+    ok = Q[:, 1] == 1
+    assert update_contexts_many([((), [0, 1, 2], Q, ok), ((1,), [0, 1, 2], Q, ok)],
+                                [2, 2, 2], P) == [(1,), None]
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_update_contexts_many_answers_as_update_context_one_by_one(
+        compiled: bool, monkeypatch: pytest.MonkeyPatch):
+    # Algorithm 3 on all DBNs at once: the answers of update_context with
+    # StoredActivations.choose for each, on random activations (unknown values, uneven
+    # sizes, current contexts of 0–2 variables, reliable and unreliable models, both
+    # ablations of the choice), with the compiled count (kernels.context_counts) and without.
+    from qlap_runtime.qlap import context
+    from qlap_runtime.qlap.context import StoredActivations, update_contexts_many
+
+    if not compiled:
+        monkeypatch.setattr(context, "kernels", lambda: None)
+
+    rng = np.random.default_rng(7)
+    for params in (P, Params(ablations=Ablations(entropy_only=True)), Params(max_context_vars=3)):
+        for _ in range(40):
+            sizes = rng.integers(1, 6, size=8).tolist()
+            problems = []
+            for _ in range(int(rng.integers(1, 8))):
+                n = int(rng.integers(1, 200))
+                Q = np.stack([rng.integers(-1 if rng.random() < 0.3 else 0, s, size=n)
+                              for s in sizes], axis=1).astype(np.int64)
+                key = rng.integers(0, 8)
+                bias = rng.random()
+                ok = np.where(Q[:, key] == 0, rng.random(n) < bias, rng.random(n) < 1 - bias)
+                cands = sorted(rng.choice(8, size=int(rng.integers(0, 7)),
+                                          replace=False).tolist())
+                current = tuple(sorted(rng.choice(8, size=int(rng.integers(0, 3)),
+                                                  replace=False).tolist()))
+                problems.append((current, cands, Q, ok))
+            want = []
+            for current, cands, Q, ok in problems:
+                acts = StoredActivations(Q, ok, sizes, params)
+                want.append(update_context(current, cands, acts.evaluate, params, acts.choose))
+            assert update_contexts_many(problems, sizes, params) == want

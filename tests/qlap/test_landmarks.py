@@ -181,3 +181,42 @@ def test_cut_gain_bounds_of_each_group_on_its_rows_are_those_of_the_masks():
         want, want_labels = _gain_bounds_masked(X, ok, Q, 5, groups)
         assert got.shape == want.shape and got.tobytes() == want.tobytes()
         assert labels.tobytes() == want_labels.tobytes()
+
+
+def test_cut_gain_bounds_many_are_those_of_each_call():
+    # Algorithm 4 bounds all DBNs at once (cut_gain_bounds_many): sequences of any length,
+    # NaNs, groups and column counts give bit for bit the bounds of one call per DBN.
+    from qlap_runtime.qlap.landmarks import cut_gain_bounds, cut_gain_bounds_many
+
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        items = []
+        for _ in range(int(rng.integers(1, 12))):
+            n, V = int(rng.choice([0, 1, 2, 3, 10, 60, 199, 200])), int(rng.integers(0, 6))
+            X = np.round(rng.normal(size=(n, V)), int(rng.integers(0, 3)))
+            X[rng.random(X.shape) < 0.05] = np.nan
+            ok = rng.random(n) < rng.random()
+            Q = np.where(np.isnan(X), -1, (X > -0.5).astype(int) * 2 + (X > 0.5) * 2)
+            groups = rng.integers(-1, int(rng.integers(1, 8)), size=n) \
+                if rng.random() < 0.5 else None
+            items.append((X, ok, Q, groups))
+        for (X, ok, Q, groups), (got, labels) in zip(items, cut_gain_bounds_many(items, 5),
+                                                     strict=True):
+            want, want_labels = cut_gain_bounds(X, ok, Q, 5, groups)
+            assert got.shape == want.shape and got.tobytes() == want.tobytes()
+            assert labels.tobytes() == want_labels.tobytes()
+
+
+def test_cut_gain_bounds_many_by_hand():
+    # One sequence 1, 2, 3, 4 with labels 1, 1, 0, 0 in one block (Q = 0): the cut after 2
+    # separates them (gain 1 bit); a second DBN with one row has no block (−inf).
+    from qlap_runtime.qlap.landmarks import cut_gain_bounds_many
+
+    X = np.array([[3.0], [1.0], [4.0], [2.0]])
+    ok = np.array([False, True, False, True])
+    Q = np.zeros((4, 1), dtype=np.int64)
+    (b1, l1), (b2, _) = cut_gain_bounds_many(
+        [(X, ok, Q, None), (X[:1], ok[:1], Q[:1], None)], 3)
+    assert b1.shape == (1, 3, 1) and len(l1) == 0
+    assert b1[0, 0, 0] == 1.0 and b1[0, 1, 0] == -np.inf and b1[0, 2, 0] == -np.inf
+    assert (b2 == -np.inf).all()

@@ -183,3 +183,31 @@ def test_algorithm_4_puts_no_motor_in_a_context():
     u = learner.perception.spaces[learner.table.index("u")].landmarks
     assert any(0.25 < m.lb <= m.ub < 0.35 for m in u), u    # the threshold, via ⟨u→q ⇒ ẋ⟩
 
+
+
+def test_cell_of_from_the_step_values_is_the_cell_of_the_real_values(learned: ModelLearner):
+    """_cell_of reads an activation's context values from the qualitative values perceived
+    at its step (kept while the landmarks are the same): the cell value_of gives from the
+    real values, for every stored row of every DBN under every context of 0–2 variables."""
+    import copy
+    from itertools import pairwise
+
+    learner = copy.deepcopy(learned)
+    cands = [v.index for v in learner.table if v.kind.name in ("MAGNITUDE", "NOMINAL")]
+    X = learner.perception.history()[0][-300:]
+    checked = 0
+    for t, x in enumerate(X, start=10**6):
+        x = np.array(x)
+        p = learner.perception.perceive(t, x, copy=False, remember=False)
+        learner._own = p
+        learner._remember_q(p)
+        for dbn in list(learner.dbns.values())[:5]:
+            for ctx in [(), *((v,) for v in cands), *pairwise(cands)]:
+                dbn.context = ctx
+                got = learner._cell_of(dbn, p.x)
+                learner._x_q.clear()
+                want = learner._cell_of(dbn, p.x)
+                learner._remember_q(p)
+                assert got == want
+                checked += got >= 0
+    assert checked > 100

@@ -74,3 +74,37 @@ def test_nan_and_unknown_variables_are_rejected_with_names():
     with pytest.raises(InvalidObservation, match="nominal variable 'T'"):
         per.perceive(0, per.vector({"u": 0.0, "x": 1.0, "T": 2}))
     assert per.steps_seen == 0                               # nothing was learned from them
+
+
+def test_value_of_is_the_loop_over_landmarks():
+    # value_of searches the upper bounds (bisect): the values of the plain loop over the
+    # landmarks in order, on the landmarks' own bounds, between them, outside, ±inf and NaN;
+    # after an insert the cached bounds follow.
+    import numpy as np
+
+    from qlap_runtime.qlap.quantity import Landmark, QuantitySpace
+
+    def loop(space, x):
+        for i, lm in enumerate(space.landmarks):
+            if x < lm.lb:
+                return 2 * i
+            if x <= lm.ub:
+                return 2 * i + 1
+        return 2 * len(space.landmarks)
+
+    assert QuantitySpace([Landmark(0.0, 1.0)]).value_of(1.0) == 1
+    assert QuantitySpace([Landmark(0.0, 1.0)]).value_of(float("nan")) == 2
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        space = QuantitySpace()
+        for _ in range(int(rng.integers(0, 6))):
+            c = float(rng.normal(0, 10))
+            try:
+                space.insert(Landmark(c, c + float(rng.choice([0.0, 0.5]))))
+            except ValueError:
+                pass
+            bounds = [b for lm in space.landmarks for b in (lm.lb, lm.ub)]
+            for x in [*bounds, *(np.nextafter(b, s) for b in bounds for s in (-1e9, 1e9)),
+                      *rng.normal(0, 12, 20).tolist(), float("inf"), -float("inf"),
+                      float("nan"), -0.0]:
+                assert space.value_of(x) == loop(space, x)
