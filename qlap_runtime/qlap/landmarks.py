@@ -88,13 +88,19 @@ def cut_gain_bounds(X: np.ndarray, ok: np.ndarray, Q: np.ndarray, n_values: int,
 def _block_bounds(X: np.ndarray, ok: np.ndarray, Q: np.ndarray, n_values: int) -> np.ndarray:
     """The bounds of :func:`cut_gain_bounds` of the blocks (column, value) of all rows (at
     least two): shape (columns, n_values)."""
-    n, V = X.shape
-    out = np.full((V, n_values), -np.inf)
     order = np.argsort(X, axis=0, kind="stable")
     # Row indices per column (as np.take_along_axis along axis 0, without its overhead).
+    col = np.arange(X.shape[1])[None, :]
+    return _sorted_block_bounds(Q[order, col], ok.astype(float)[order], n_values)
+
+
+def _sorted_block_bounds(Qs: np.ndarray, ys: np.ndarray, n_values: int) -> np.ndarray:
+    """Each column of ``Qs`` (values of Q in the order of the sorted values) with its success
+    labels ``ys`` (0/1 as floats): the highest information gain of a cut inside each block
+    (run of equal Q), shape (columns, n_values), −inf where a value has no block."""
+    n, V = Qs.shape
+    out = np.full((V, n_values), -np.inf)
     col = np.arange(V)[None, :]
-    Qs = Q[order, col]
-    ys = ok.astype(float)[order]
     rows = np.arange(n)[:, None]
     is_start = np.ones(Qs.shape, dtype=bool)
     is_start[1:] = Qs[1:] != Qs[:-1]
@@ -218,46 +224,16 @@ def _sequence_bounds(X: np.ndarray, Y: np.ndarray, Q: np.ndarray, n_values: int)
     floats) instead of one per column: shape (rows, n_values). The same element-wise
     operations on the same values, in the transposed layout (compiled: kernels.sequence_bounds
     with the entropies from :func:`entropy_table`)."""
-    C, R = X.shape
+    R = X.shape[1]
     k = kernels()
     if k is not None:
         n_max = max(200, 1 << max(R - 1, 1).bit_length())        # a few tables at most
         return k.sequence_bounds(np.ascontiguousarray(X), np.ascontiguousarray(Y),
                                  np.ascontiguousarray(Q, dtype=np.int64), int(n_values),
                                  entropy_table(n_max))
-    out = np.full((C, n_values), -np.inf)
     order = np.argsort(X, axis=1, kind="stable")
-    Qs = np.take_along_axis(Q, order, axis=1)
-    ys = np.take_along_axis(Y, order, axis=1)
-    pos = np.arange(R)[None, :]
-    is_start = np.ones(Qs.shape, dtype=bool)
-    is_start[:, 1:] = Qs[:, 1:] != Qs[:, :-1]
-    is_end = np.ones(Qs.shape, dtype=bool)
-    is_end[:, :-1] = is_start[:, 1:]
-    start = np.maximum.accumulate(np.where(is_start, pos, 0), axis=1)
-    end = np.minimum.accumulate(np.where(is_end, pos, R)[:, ::-1], axis=1)[:, ::-1]
-    flat_start = np.flatnonzero(is_start.ravel())
-    seg_row = flat_start // R
-    seg_q = Qs.ravel()[flat_start]
-    keep = (seg_q >= 0) & (seg_q < n_values)
-    cw = np.broadcast_to(np.arange(1.0, R + 1.0)[None, :], Qs.shape)   # cumsum of ones
-    cy = np.cumsum(ys, axis=1)
-    zero = np.zeros((C, 1))
-    base_w = np.take_along_axis(np.hstack([zero, cw]), start, axis=1)
-    base_y = np.take_along_axis(np.hstack([zero, cy]), start, axis=1)
-    N = np.take_along_axis(cw, end, axis=1) - base_w
-    S = np.take_along_axis(cy, end, axis=1) - base_y
-    ln = cw - base_w
-    ls = cy - base_y
-    rn = N - ln
-    valid = (rn > 0) & (Qs >= 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gain = (binary_entropy_array(S / N) - ln / N * binary_entropy_array(ls / ln)
-                - rn / N * binary_entropy_array((S - ls) / rn))
-    gain = np.where(valid, gain, -np.inf)
-    seg_max = np.maximum.reduceat(gain.ravel(), flat_start)
-    out[seg_row[keep], seg_q[keep]] = seg_max[keep]
-    return out
+    return _sorted_block_bounds(np.take_along_axis(Q, order, axis=1).T,
+                                np.take_along_axis(Y, order, axis=1).T, n_values)
 
 
 def candidate_range(cut: Cut, vmin: float, vmax: float, bin_size: float,

@@ -373,23 +373,18 @@ class Perception:
             ev, val, dirs, ids = k.events_of(q, prev, self._is_mag, self.events.offset,
                                              self.events.mult)
             events = tuple(map(Event, ev.tolist(), val.tolist(), dirs.tolist()))
-            if remember:
-                self._remember(x, q)
-            else:
-                self.prev_x = x
-                self.prev_q = q
-            return Percept(step, x, q, events, ids, discontinuity)
-        ev_vars = ((q != prev) & (q >= 0) & (prev >= 0)).nonzero()[0]
-        if len(ev_vars):
-            qv = q[ev_vars]
-            down = self._is_mag[ev_vars] & (qv < prev[ev_vars])
-            up = self._is_mag[ev_vars] & ~down
-            ids = self.events.offset[ev_vars] + qv * self.events.mult[ev_vars] + down
-            dirs = up.astype(np.int64) - down
-            events = tuple(map(Event, ev_vars.tolist(), qv.tolist(), dirs.tolist()))
         else:
-            ids = ev_vars
-            events = ()
+            ev_vars = ((q != prev) & (q >= 0) & (prev >= 0)).nonzero()[0]
+            if len(ev_vars):
+                qv = q[ev_vars]
+                down = self._is_mag[ev_vars] & (qv < prev[ev_vars])
+                up = self._is_mag[ev_vars] & ~down
+                ids = self.events.offset[ev_vars] + qv * self.events.mult[ev_vars] + down
+                dirs = up.astype(np.int64) - down
+                events = tuple(map(Event, ev_vars.tolist(), qv.tolist(), dirs.tolist()))
+            else:
+                ids = ev_vars
+                events = ()
         if remember:
             self._remember(x, q)
         else:
