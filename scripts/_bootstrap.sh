@@ -24,3 +24,19 @@ if [ ! -f "$STAMP" ] || [ "$ROOT/pyproject.toml" -nt "$STAMP" ]; then
     "$VENV/bin/python" -m pip install -q -e "$ROOT[dev,experiments]" >&2
     touch "$STAMP"
 fi
+# The agent's numeric loops are compiled by numba on first use and cached beside their source
+# (qlap_runtime/qlap/kernels.py): compile them here, once, so that the first run of the UI
+# does not stall ~15 s over its first batches. A short headless run reaches every kernel.
+KSTAMP="$VENV/.qlap-kernels"
+if [ ! -f "$KSTAMP" ] || [ "$ROOT/qlap_runtime/qlap/kernels.py" -nt "$KSTAMP" ] \
+        || [ "$STAMP" -nt "$KSTAMP" ]; then
+    echo "[bootstrap] compiling the agent's numeric kernels (once, ~20 s)" >&2
+    KTMP="$(mktemp -d)"
+    if "$VENV/bin/python" -m qlap_runtime.cli run --headless --placement sync --world core \
+            --steps 21000 --seed 0 --out "$KTMP/run" --quiet >/dev/null 2>&1; then
+        touch "$KSTAMP"
+    else
+        echo "[bootstrap] could not compile them now; the first run will" >&2
+    fi
+    rm -rf "$KTMP"
+fi
