@@ -75,7 +75,7 @@ async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
         snapshot_pending = False
         async with trio.open_nursery() as nursery:
             for t in actor.steps():
-                msg = await actor.receive(t)
+                msg = await actor.receive(t, lazy=True)
                 if msg is None:
                     break
                 if msg.rejected:

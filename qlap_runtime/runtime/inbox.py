@@ -145,6 +145,12 @@ class StepInbox:
         for r in self.sub.receive_nowait():
             self.add(r.msg, len(r.payload))
 
+    def ready(self, step: int) -> bool:
+        """Whether step ``step``'s message is here (what has arrived is kept first)."""
+        if step not in self.buf:
+            self.drain()
+        return step in self.buf
+
     def latest(self) -> Any | None:
         """The newest message held, keeping only it (the realtime clock's batch context:
         the next batch may have no newer one); None when none is held."""
