@@ -9,9 +9,9 @@ ask the writers' replay logs again for what does not come in time (a lost messag
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Awaitable, Callable
-from contextlib import nullcontext
 from typing import TYPE_CHECKING, Any
 
 import trio
@@ -176,8 +176,11 @@ class StepInbox:
         """Step ``step``'s message (waited for; the wait is on the board, before passing step
         ``at``, by default ``step``)."""
         if step not in self.buf:
-            with self.slot.waiting(self.topic, step, at):
+            self.slot.wait(self.topic, step, at)
+            try:
                 await self._wait_for(step)
+            finally:
+                self.slot.clear()
         self.next = max(self.next, step + 1)
         self.pending_bytes -= self.sizes.pop(step, 0)
         return self.buf.pop(step)
@@ -189,12 +192,12 @@ class StepInbox:
             if end is not None and end.ended(step):
                 raise RunEnded(end.last_step)       # type: ignore[arg-type]
             batch: list = []
-            with end.interruptible() if end is not None else nullcontext():
-                if refills is None:
-                    batch = await self.sub.receive_batch()
-                else:
-                    with trio.move_on_at(refills.deadline):
-                        batch = await self.sub.receive_batch()
+            # One cancel scope per wait (they cost more than the rest of a step's wait): the
+            # refill deadline, cancelled early by the end marker.
+            deadline = math.inf if refills is None else refills.deadline
+            with end.interruptible(deadline) if end is not None \
+                    else trio.CancelScope(deadline=deadline):
+                batch = await self.sub.receive_batch()
             for r in batch:
                 self.add(r.msg, len(r.payload))
             if refills is None or step in self.buf or (end and end.ended(step)):
