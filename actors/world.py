@@ -49,6 +49,7 @@ from qlap_runtime.runtime.rules import motor_rule
 from qlap_runtime.runtime.watchdog import slot_of
 
 from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
+from .perception import PerceptionActor
 from .resume import applied_motors, restore_world
 
 NAME = "world"
@@ -81,7 +82,11 @@ def bus_values(values: dict, available_from: dict[str, int], t: int) -> tuple[di
     return out, bad
 
 
-async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict:
+async def run(session, ctx: RunContext, ready: trio.Event | None = None,
+              perception: PerceptionActor | None = None) -> dict:
+    """The world actor's loop; with ``perception`` (the embedded placement) it also runs the
+    perception actor's step right after publishing each ``sense(t)`` (:class:`PerceptionActor`),
+    and ends it (its replay log kept open for the learners behind) before returning."""
     import worlds
 
     world = worlds.make(ctx.world)
@@ -119,6 +124,8 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                               window=None if ctx.realtime else 0,
                               rule=motor_rule(world.variables))
             last_view = 0.0
+            if perception is not None:
+                await perception.start()        # alive: the launcher waits for its token
             if ready is not None:
                 await ready.wait()
             clock = RealtimeClock(controls, counter, slot, ctx.hz) if ctx.realtime \
@@ -137,6 +144,9 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 sense = Sense(t, values, bool(getattr(world, "discontinuity", False)))
                 if pub.put(sense) or not (pub.faults and pub.faults.lost):
                     replay.append(t, sense)         # for a perception actor restarted later
+                if perception is not None:
+                    # This session already handed sense(t) to its inbox: no wait, no wake-up.
+                    await perception.step(t)
                 t0 = time.perf_counter()
                 motor = await clock.motor(inbox, t)
                 stats["wait_s"] += time.perf_counter() - t0
@@ -177,6 +187,8 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
             # actors) and pauses excluded: what the benchmarks compare between placements.
             stats["loop_s"] = round(time.perf_counter() - loop_t0 - clock.paused_s, 3)
             stats["paused_s"] = round(clock.paused_s, 3)
+            if perception is not None:
+                await perception.finish()
     except BaseException:                       # cancelled (maybe in a group) by a stall
         keep_on_stall(ctx, world=world)         # a stalled run keeps the world's state
         raise

@@ -38,6 +38,10 @@ async def _run_actor(name: str, session: Any, ctx: Any, ready: trio.Event | None
 
     if name == "world":
         return await world.run(session, ctx, ready)
+    if name == "world+perception":         # the embedded placement: one task, two actors
+        with perception.PerceptionActor(session, ctx) as hosted:
+            result = await world.run(session, ctx, ready, perception=hosted)
+            return {"world": result, "perception": hosted.result}
     if name == "perception":
         return await perception.run(session, ctx)
     if name in ("contingency", "landmarks"):
@@ -91,6 +95,11 @@ async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, An
         stop = trio.Event()
 
         async def one(name: str) -> None:
+            if name == "perception":
+                return                           # its steps run in the world's task
+            if name == "world":
+                results.update(await _run_actor("world+perception", session, ctx, ready))
+                return
             results[name] = await _run_actor(name, session, ctx, ready)
 
         async with trio.open_nursery() as outer:

@@ -175,7 +175,7 @@ class StepInbox:
     async def get(self, step: int, at: int | None = None) -> Any:
         """Step ``step``'s message (waited for; the wait is on the board, before passing step
         ``at``, by default ``step``)."""
-        if step not in self.buf:
+        if not self.ready(step):                # what has arrived first: no wait then
             self.slot.wait(self.topic, step, at)
             try:
                 await self._wait_for(step)
