@@ -253,6 +253,10 @@ class TrioSubscriber:
         subscriber then hands out without decoding it again (it never left the process)."""
         self._inbox.push((key, payload, time.time_ns(), msg))
 
+    def pending(self) -> int:
+        """Messages that arrived and were not taken yet (not decoded yet)."""
+        return self._inbox.pending()
+
     @property
     def received(self) -> int:
         """Samples that reached the callback (valid or not)."""
