@@ -49,6 +49,9 @@ async def _run_actor(name: str, session: Any, ctx: Any, ready: trio.Event | None
                 result = await world.run(session, ctx, ready, perception=per, executor=ex)
                 nursery.cancel_scope.cancel()
             return {"world": result, "perception": per.result, "executor": ex.result}
+    if name == "contingency" and ctx.placement == "embedded":
+        # Both learners in one task on one learner: {"contingency": …, "landmarks": …}.
+        return await learning.run_pair(session, ctx)
     if name == "perception":
         return await perception.run(session, ctx)
     if name in ("contingency", "landmarks"):
@@ -102,10 +105,13 @@ async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, An
         stop = trio.Event()
 
         async def one(name: str) -> None:
-            if name in CHAIN[1:]:
-                return                           # their steps run in the world's task
+            if name in CHAIN[1:] or name == "landmarks":
+                return                           # their steps run in another's task
             if name == "world":
                 results.update(await _run_actor("chain", session, ctx, ready))
+                return
+            if name == "contingency":               # with the landmarks actor
+                results.update(await _run_actor(name, session, ctx, ready))
                 return
             results[name] = await _run_actor(name, session, ctx, ready)
 
