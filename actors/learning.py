@@ -204,10 +204,10 @@ async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
                 await guest.batch(t, nursery)
                 await guest.settle(t)
                 await host.settle(t)
-        results = {}
-        for me in (guest, host):
-            results[me.role] = await me.finish()
-        return results
+            # Both end together: each one's replay log waits for the other's token to go.
+            nursery.start_soon(guest.finish)
+            nursery.start_soon(host.finish)
+        return {me.role: me.result for me in (host, guest)}
 
 
 async def _context_before(contexts: StepInbox, t: int, start: int,
