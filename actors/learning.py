@@ -201,6 +201,9 @@ async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
                 if not await host.observe(t) or not await guest.observe(t):
                     break
                 await host.batch(t, nursery)
+                if batch_kinds(ctx.params, t):
+                    # Between the two batch copies, let the step chain run (realtime ticks).
+                    await trio.lowlevel.checkpoint()
                 await guest.batch(t, nursery)
                 await guest.settle(t)
                 await host.settle(t)
