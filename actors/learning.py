@@ -119,20 +119,34 @@ class LearnerActor:
             self.learner.observe_percept(self.codec.percept(msg))
         return True
 
-    async def batch(self, t: int, nursery: trio.Nursery) -> None:
+    async def batch(self, t: int, nursery: trio.Nursery,
+                    guest: LearnerActor | None = None) -> None:
         """This actor's batch at ``t``, if one starts there: on a copy of the learner, in a
-        worker thread when L > 0 (the actor goes on), its delta applied by all at t + L."""
+        worker thread when L > 0 (the actor goes on), its delta applied by all at t + L.
+
+        ``guest`` (the landmarks actor on this learner, at one of its batch steps): its batch
+        is computed on the same copy, lines 10–13 right after this one's lines 6–9, as the
+        standalone landmarks actor computes them on its own identical copy; each actor
+        publishes its part."""
         ctx, kind = self.ctx, self.kind
         if self._msg.rejected or kind not in batch_kinds(ctx.params, t):
             return
         bc = await _context_before(self.contexts, t, ctx.start, ctx.realtime)
+        if guest is not None:                   # its own copy of the same context
+            await _context_before(guest.contexts, t, ctx.start, ctx.realtime)
         if bc is not None:
             apply_batch_context(self.learner, bc)
         work = self.out.started(t, self.learner)
+        outs = [(kind, self.out)]
+        if guest is not None:
+            guest.out.reserve(t)
+            outs.append((guest.kind, guest.out))
+        kinds = tuple(k for k, _ in outs) if guest is not None else \
+            (("dbn", "landmarks") if kind == "landmarks" else ("dbn",))
         if ctx.params.batch_lag == 0 and not ctx.realtime:
-            self.out.publish(_compute(work, t, kind, self.batch_s))
+            _publish(outs, _compute(work, t, kinds, self.batch_s))
         else:
-            nursery.start_soon(_background, work, t, kind, self.out, self.batch_s)
+            nursery.start_soon(_background, work, t, kinds, outs, self.batch_s)
 
     async def settle(self, t: int) -> None:
         """The deltas due at ``t`` (applied, unless a guest: its host applies them), the
@@ -200,11 +214,9 @@ async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
             for t in host.actor.steps():
                 if not await host.observe(t) or not await guest.observe(t):
                     break
-                await host.batch(t, nursery)
-                if batch_kinds(ctx.params, t):
-                    # Between the two batch copies, let the step chain run (realtime ticks).
-                    await trio.lowlevel.checkpoint()
-                await guest.batch(t, nursery)
+                # One copy and one computation for both at a landmark batch step.
+                both = "landmarks" in batch_kinds(ctx.params, t)
+                await host.batch(t, nursery, guest if both else None)
                 await guest.settle(t)
                 await host.settle(t)
             # Both end together: each one's replay log waits for the other's token to go.
@@ -245,9 +257,13 @@ class Outbox:
     def started(self, t: int, learner: ModelLearner) -> ModelLearner:
         """A batch starts at ``t``: the copy of the learner it computes on."""
         work = learner.batch_copy()
+        self.reserve(t)
+        return work
+
+    def reserve(self, t: int) -> None:
+        """A batch of this actor's kind is in flight from ``t`` (on the board)."""
         self.in_flight.add(t)
         self.slot.busy(len(self.in_flight))
-        return work
 
     def publish(self, delta: Delta) -> None:
         msg = DeltaMsg.of(self.kind, delta)
@@ -263,13 +279,20 @@ class Outbox:
         return [m for s, m in self.output.log.entries(step + 1)]
 
 
-def _compute(work: ModelLearner, t: int, kind: str, times: list[float]) -> Delta:
+def _compute(work: ModelLearner, t: int, kinds: tuple[str, ...],
+             times: list[float]) -> dict[str, Delta]:
     t0 = time.perf_counter()
-    parts = work.compute_parts(t, ("dbn", "landmarks") if kind == "landmarks" else ("dbn",))
+    parts = work.compute_parts(t, kinds)
     times.append(time.perf_counter() - t0)
-    return parts[kind]
+    return parts
 
 
-async def _background(work: ModelLearner, t: int, kind: str, out: Outbox,
-                      times: list[float]) -> None:
-    out.publish(await to_thread(_compute, work, t, kind, times))
+def _publish(outs: list[tuple[str, Outbox]], parts: dict[str, Delta]) -> None:
+    """Each actor's part, dbn first (the order every consumer applies them in)."""
+    for kind, out in outs:
+        out.publish(parts[kind])
+
+
+async def _background(work: ModelLearner, t: int, kinds: tuple[str, ...],
+                      outs: list[tuple[str, Outbox]], times: list[float]) -> None:
+    _publish(outs, await to_thread(_compute, work, t, kinds, times))
