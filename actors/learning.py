@@ -11,7 +11,8 @@ boundary, so their states are identical replicas of the synchronous loop's learn
   and on DBNs), and publishes ``delta/landmarks``.
 
 With a batch lag L > 0 the computation runs on a copy in a worker thread while the actor keeps
-consuming steps; its delta is applied by everyone at t + L.
+consuming steps; its delta is applied by everyone at t + L. In the embedded placement both
+actors run in one task on one learner (:func:`run_pair`): the statistics are kept once.
 """
 
 from __future__ import annotations
@@ -41,14 +42,52 @@ CONSUMERS = ("perception", "contingency", "landmarks", "executor")
 """Every actor that applies deltas."""
 
 
-async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
-    if role not in ROLES:
-        raise ValueError(f"unknown learning role {role!r}; expected {sorted(ROLES)}")
-    kind = ROLES[role]
-    specs, _ = world_variables(ctx.world)
-    batch_s: list[float] = []
-    with Actor(session, ctx, role) as actor:
+class LearnerActor:
+    """One batch-learning actor (``role`` contingency or landmarks): its learner, inputs and
+    outputs, and its loop's step in three phases — :meth:`observe` (Algorithm 2 lines 2–5),
+    :meth:`batch` (lines 6–9 or 6–13 on a copy) and :meth:`settle` (the deltas due, the
+    snapshot).
+
+    ``shared``: in the embedded placement both learners keep the same statistics from the same
+    stream, so the contingency actor's task hosts the landmarks actor's steps on ONE learner
+    (:func:`run_pair`): the host observes and applies the deltas, the guest only takes its
+    messages (its rules and books as standalone) and computes its own batches. Each state a
+    batch copies is the standalone actors' state at that step, so the deltas are the same.
+    """
+
+    def __init__(self, session: Any, ctx: RunContext, role: str,
+                 shared: ModelLearner | None = None) -> None:
+        if role not in ROLES:
+            raise ValueError(f"unknown learning role {role!r}; expected {sorted(ROLES)}")
+        self.ctx, self.role, self.kind = ctx, role, ROLES[role]
+        self.guest = shared is not None
+        self.batch_s: list[float] = []
+        self.result: dict[str, Any] | None = None
+        self.actor = actor = Actor(session, ctx, role)
         resume = actor.resume
+        if shared is not None:
+            learner = shared
+        else:
+            learner = self.load(ctx, resume)
+        self.learner = learner
+        self.codec = codec = QStateCodec(learner.table)
+        n = len(learner.table)
+        actor.input("qstate", window=ctx.replay_keep, rule=qstate_rule(codec.names))
+        # The executor's state before each batch (§6.2.1); the one before the first batch
+        # after a snapshot may be of the snapshot's own step.
+        self.contexts = actor.input("batchctx", window=ctx.replay_keep, rule=batchctx_rule(n),
+                                    first=resume.step)
+        self.deltas = actor.deltas(n)
+        self.out = Outbox(actor.output(f"delta/{self.kind}"), self.kind, ctx.params.batch_lag,
+                          actor.slot)
+        for d in resume.state.get("own", []):      # published before the snapshot
+            self.out.log(DeltaMsg(self.kind, d))
+        self.snapshot_pending = False
+        self._msg: Any = None
+
+    @staticmethod
+    def load(ctx: RunContext, resume: Any) -> ModelLearner:
+        """The learner to start from: a snapshot, a resumed run's checkpoint, or fresh."""
         checkpoint = checkpoint_of(ctx, resume.path)
         if resume.path is not None:
             learner = load_learner(resume.path)
@@ -57,59 +96,133 @@ async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
             learner.follower = False
             learner.pending_deltas.clear()      # none: refused before the run otherwise
         else:
+            specs, _ = world_variables(ctx.world)
             learner = ModelLearner(specs, ctx.params)
         learner.auto_batches = False
-        codec, n = QStateCodec(learner.table), len(learner.table)
-        actor.input("qstate", window=ctx.replay_keep, rule=qstate_rule(codec.names))
-        # The executor's state before each batch (§6.2.1); the one before the first batch
-        # after a snapshot may be of the snapshot's own step.
-        contexts = actor.input("batchctx", window=ctx.replay_keep, rule=batchctx_rule(n),
-                               first=resume.step)
-        deltas = actor.deltas(n)
-        out = Outbox(actor.output(f"delta/{kind}"), kind, ctx.params.batch_lag, actor.slot)
-        for d in resume.state.get("own", []):      # published before the snapshot
-            out.log(DeltaMsg(kind, d))
-        await actor.start()
-        for _, msg in out.output.log.entries():
-            deltas.add(msg, live=False)             # its own deltas not yet applied here
-        snapshot_pending = False
+        return learner
+
+    async def start(self) -> None:
+        await self.actor.start()
+        for _, msg in self.out.output.log.entries():
+            self.deltas.add(msg, live=False)     # its own deltas not yet applied here
+
+    async def observe(self, t: int) -> bool:
+        """Take ``qstate(t)`` and learn from it (not a guest: its host did); False when the
+        run ended before step t."""
+        msg = await self.actor.receive(t, lazy=not self.guest)
+        self._msg = msg
+        if msg is None:
+            return False
+        if msg.rejected:
+            self.deltas.book.skipped.add(t)
+        elif not self.guest:
+            self.learner.observe_percept(self.codec.percept(msg))
+        return True
+
+    async def batch(self, t: int, nursery: trio.Nursery,
+                    guest: LearnerActor | None = None) -> None:
+        """This actor's batch at ``t``, if one starts there: on a copy of the learner, in a
+        worker thread when L > 0 (the actor goes on), its delta applied by all at t + L.
+
+        ``guest`` (the landmarks actor on this learner, at one of its batch steps): its batch
+        is computed on the same copy, lines 10–13 right after this one's lines 6–9, as the
+        standalone landmarks actor computes them on its own identical copy; each actor
+        publishes its part."""
+        ctx, kind = self.ctx, self.kind
+        if self._msg.rejected or kind not in batch_kinds(ctx.params, t):
+            return
+        bc = await _context_before(self.contexts, t, ctx.start, ctx.realtime)
+        if guest is not None:                   # its own copy of the same context
+            await _context_before(guest.contexts, t, ctx.start, ctx.realtime)
+        if bc is not None:
+            apply_batch_context(self.learner, bc)
+        work = self.out.started(t, self.learner)
+        outs = [(kind, self.out)]
+        if guest is not None:
+            guest.out.reserve(t)
+            outs.append((guest.kind, guest.out))
+        kinds = tuple(k for k, _ in outs) if guest is not None else \
+            (("dbn", "landmarks") if kind == "landmarks" else ("dbn",))
+        if ctx.params.batch_lag == 0 and not ctx.realtime:
+            _publish(outs, _compute(work, t, kinds, self.batch_s))
+        else:
+            nursery.start_soon(_background, work, t, kinds, outs, self.batch_s)
+
+    async def settle(self, t: int) -> None:
+        """The deltas due at ``t`` (applied, unless a guest: its host applies them), the
+        checkpoint's statistics part and the snapshot."""
+        actor, ctx, learner, out = self.actor, self.ctx, self.learner, self.out
+        if not self._msg.rejected:
+            for d in await self.deltas.due_now(t, ctx.realtime):
+                if not self.guest:
+                    learner.apply_delta(d)
+        actor.slot.done(t)
+        if self.role == "contingency":          # the executor's checkpoint's part
+            save_statistics_part(part_dir(ctx, t), learner)
+        # A snapshot at t must not miss a batch computed at or before t: with one in flight
+        # it waits for the first step after its delta was published.
+        self.snapshot_pending = self.snapshot_pending or actor.snapshot_due(t)
+        if self.snapshot_pending and not out.in_flight and t + 1 < ctx.end:
+            self.snapshot_pending = False
+            # Its deltas a consumer restarted from its oldest snapshot may need.
+            since = min(t, actor.oldest_snapshot(CONSUMERS))
+            actor.snapshot(t, lambda d: save_learner(learner, d),
+                           own=[m.delta for m in out.pending(since)])
+
+    async def finish(self) -> dict[str, Any]:
+        """After the last step: the final statistics part; stay until the consumers are done."""
+        self.actor.slot.finished()
+        if self.role == "contingency":
+            save_statistics_part(final_dir(self.ctx), self.learner)
+        await self.actor.linger(CONSUMERS)      # a consumer behind may ask for a lost delta
+        self.result = self.actor.result(batches=len(self.batch_s),
+                                        batch_s=round(sum(self.batch_s), 3))
+        return self.result
+
+    def close(self) -> None:
+        self.actor.close()
+
+    def __enter__(self) -> LearnerActor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
+    """One learning actor as a task of its own."""
+    with LearnerActor(session, ctx, role) as me:
+        await me.start()
         async with trio.open_nursery() as nursery:
-            for t in actor.steps():
-                msg = await actor.receive(t)
-                if msg is None:
+            for t in me.actor.steps():
+                if not await me.observe(t):
                     break
-                if msg.rejected:
-                    deltas.book.skipped.add(t)
-                else:
-                    learner.observe_percept(codec.percept(msg))
-                    if kind in batch_kinds(ctx.params, t):
-                        bc = await _context_before(contexts, t, ctx.start, ctx.realtime)
-                        if bc is not None:
-                            apply_batch_context(learner, bc)
-                        work = out.started(t, learner)
-                        if ctx.params.batch_lag == 0 and not ctx.realtime:
-                            out.publish(_compute(work, t, kind, batch_s))
-                        else:
-                            nursery.start_soon(_background, work, t, kind, out, batch_s)
-                    for d in await deltas.due_now(t, ctx.realtime):
-                        learner.apply_delta(d)
-                actor.slot.done(t)
-                if role == "contingency":           # the executor's checkpoint's part
-                    save_statistics_part(part_dir(ctx, t), learner)
-                # A snapshot at t must not miss a batch computed at or before t: with one in
-                # flight it waits for the first step after its delta was published.
-                snapshot_pending = snapshot_pending or actor.snapshot_due(t)
-                if snapshot_pending and not out.in_flight and t + 1 < ctx.end:
-                    snapshot_pending = False
-                    # Its deltas a consumer restarted from its oldest snapshot may need.
-                    since = min(t, actor.oldest_snapshot(CONSUMERS))
-                    actor.snapshot(t, lambda d: save_learner(learner, d),
-                                   own=[m.delta for m in out.pending(since)])
-        actor.slot.finished()
-        if role == "contingency":
-            save_statistics_part(final_dir(ctx), learner)
-        await actor.linger(CONSUMERS)           # a consumer behind may ask for a lost delta
-    return actor.result(batches=len(batch_s), batch_s=round(sum(batch_s), 3))
+                await me.batch(t, nursery)
+                await me.settle(t)
+        return await me.finish()
+
+
+async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
+    """Both learning actors in one task on one learner (the embedded placement): the
+    contingency actor observes each step once and applies each delta once, the landmarks
+    actor computes its batches on the same state (docs/decisions.md 54)."""
+    with LearnerActor(session, ctx, "contingency") as host, \
+            LearnerActor(session, ctx, "landmarks", shared=host.learner) as guest:
+        await host.start()
+        await guest.start()
+        async with trio.open_nursery() as nursery:
+            for t in host.actor.steps():
+                if not await host.observe(t) or not await guest.observe(t):
+                    break
+                # One copy and one computation for both at a landmark batch step.
+                both = "landmarks" in batch_kinds(ctx.params, t)
+                await host.batch(t, nursery, guest if both else None)
+                await guest.settle(t)
+                await host.settle(t)
+            # Both end together: each one's replay log waits for the other's token to go.
+            nursery.start_soon(guest.finish)
+            nursery.start_soon(host.finish)
+        return {me.role: me.result for me in (host, guest)}
 
 
 async def _context_before(contexts: StepInbox, t: int, start: int,
@@ -144,9 +257,13 @@ class Outbox:
     def started(self, t: int, learner: ModelLearner) -> ModelLearner:
         """A batch starts at ``t``: the copy of the learner it computes on."""
         work = learner.batch_copy()
+        self.reserve(t)
+        return work
+
+    def reserve(self, t: int) -> None:
+        """A batch of this actor's kind is in flight from ``t`` (on the board)."""
         self.in_flight.add(t)
         self.slot.busy(len(self.in_flight))
-        return work
 
     def publish(self, delta: Delta) -> None:
         msg = DeltaMsg.of(self.kind, delta)
@@ -162,13 +279,20 @@ class Outbox:
         return [m for s, m in self.output.log.entries(step + 1)]
 
 
-def _compute(work: ModelLearner, t: int, kind: str, times: list[float]) -> Delta:
+def _compute(work: ModelLearner, t: int, kinds: tuple[str, ...],
+             times: list[float]) -> dict[str, Delta]:
     t0 = time.perf_counter()
-    parts = work.compute_parts(t, ("dbn", "landmarks") if kind == "landmarks" else ("dbn",))
+    parts = work.compute_parts(t, kinds)
     times.append(time.perf_counter() - t0)
-    return parts[kind]
+    return parts
 
 
-async def _background(work: ModelLearner, t: int, kind: str, out: Outbox,
-                      times: list[float]) -> None:
-    out.publish(await to_thread(_compute, work, t, kind, times))
+def _publish(outs: list[tuple[str, Outbox]], parts: dict[str, Delta]) -> None:
+    """Each actor's part, dbn first (the order every consumer applies them in)."""
+    for kind, out in outs:
+        out.publish(parts[kind])
+
+
+async def _background(work: ModelLearner, t: int, kinds: tuple[str, ...],
+                      outs: list[tuple[str, Outbox]], times: list[float]) -> None:
+    _publish(outs, await to_thread(_compute, work, t, kinds, times))

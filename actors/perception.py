@@ -54,57 +54,100 @@ def _as_sent(per: Perception, t: int, msg, exc: InvalidObservation) -> InvalidOb
     return exc
 
 
-async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
-    specs, _ = world_variables(ctx.world)
-    table = VariableTable.from_specs(specs)
-    per, codec = Perception(table, ctx.params), QStateCodec(table)
-    rejected_obs = 0
-    sense_key = keys.key(ctx.run_id, "sense")
-    with Actor(session, ctx, NAME) as actor:
+class PerceptionActor:
+    """The perception actor: its state, its inputs and outputs, and one step of its loop.
+
+    Standalone (:func:`run`) it is a task of its own. In the embedded placement the world's task
+    hosts it (``actors.world.run(..., perception=...)``): the world calls :meth:`step` right
+    after publishing ``sense(t)``, whose message the same session has already handed to this
+    actor's inbox, so the step chain wakes two tasks per step (world, executor) instead of
+    three. Inputs, rules, replay and snapshots are the same either way.
+    """
+
+    def __init__(self, session: Any, ctx: RunContext) -> None:
+        specs, _ = world_variables(ctx.world)
+        table = VariableTable.from_specs(specs)
+        self.ctx = ctx
+        self.per, self.codec = Perception(table, ctx.params), QStateCodec(table)
+        self.rejected_obs = 0
+        self.sense_key = keys.key(ctx.run_id, "sense")
+        self.actor = actor = Actor(session, ctx, NAME)
+        self.result: dict[str, Any] | None = None
         resume = actor.resume
         checkpoint = checkpoint_of(ctx, resume.path)
         if resume.path is not None:
-            load_perception(per, resume.path)
+            load_perception(self.per, resume.path)
         elif checkpoint is not None:            # a resumed run: the learner's perception
-            per = load_learner(checkpoint).perception
+            self.per = load_learner(checkpoint).perception
         # On the step chain: sense(t + 1) exists only once qstate(t) went out (window 1;
         # unknown variables are rejected by perceive, as in the synchronous loop).
         actor.input("sense", window=1)
-        deltas = actor.deltas(len(table))
-        out = actor.output("qstate")
-        actor.restore_log(out, resume.state.get("qstate", []))
-        await actor.start()
-        last_observed = int(resume.state.get("last_observed", ctx.start - 1))
-        for t in actor.steps():
-            msg = await actor.receive(t)
-            if msg is None:
+        self.deltas = actor.deltas(len(table))
+        self.out = actor.output("qstate")
+        actor.restore_log(self.out, resume.state.get("qstate", []))
+        self.last_observed = int(resume.state.get("last_observed", ctx.start - 1))
+
+    async def start(self) -> None:
+        """Alive (every subscription exists); a restarted actor fetches what it missed."""
+        await self.actor.start()
+
+    async def step(self, t: int) -> bool:
+        """``sense(t)`` -> ``qstate(t)``; False when the run ended before step t."""
+        actor, per, deltas, ctx = self.actor, self.per, self.deltas, self.ctx
+        msg = await actor.receive(t)
+        if msg is None:
+            return False
+        last_observed = self.last_observed
+        if last_observed >= ctx.start and last_observed > deltas.book.last:
+            # Deltas applied at the boundary of the last observed step change the
+            # landmarks used from t on.
+            apply_landmark_ops(per, await deltas.due_now(last_observed, ctx.realtime))
+        try:
+            p = per.perceive(t, per.vector(msg.values), copy=False,
+                             discontinuity=msg.discontinuity)
+        except InvalidObservation as exc:
+            exc = _as_sent(per, t, msg, exc)
+            self.rejected_obs += 1
+            deltas.book.skipped.add(t)
+            actor.counter.reject(self.sense_key, str(exc))
+            qstate = QState(t, {}, (), {}, rejected=str(exc)[:500])
+        else:
+            self.last_observed = t
+            qstate = self.codec.message(p)
+        self.out.put(t, qstate)
+        actor.slot.done(t)
+        if actor.snapshot_due(t):
+            # The qstate log after the oldest consumer snapshot goes with it: a consumer
+            # restarted from that snapshot after this actor restarted fetches them from
+            # the new process (chaos trials, issue 13).
+            since = actor.oldest_snapshot(CONSUMERS) + 1
+            actor.snapshot(t, lambda d: save_perception(per, d),
+                           last_observed=self.last_observed,
+                           qstate=[[s, encode(m).decode()] for s, m in self.out.log.entries(since)])
+        return True
+
+    async def finish(self) -> dict[str, Any]:
+        """After the last step: keep the qstate log open for the learners behind; the result."""
+        self.actor.slot.finished()
+        await self.actor.linger(CONSUMERS)      # a learner behind may ask for a lost qstate
+        self.result = self.actor.result(rejected_observations=self.rejected_obs)
+        return self.result
+
+    def close(self) -> None:
+        self.actor.close()
+
+    def __enter__(self) -> PerceptionActor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
+    """The perception actor as a task of its own."""
+    with PerceptionActor(session, ctx) as perception:
+        await perception.start()
+        for t in perception.actor.steps():
+            if not await perception.step(t):
                 break
-            if last_observed >= ctx.start and last_observed > deltas.book.last:
-                # Deltas applied at the boundary of the last observed step change the
-                # landmarks used from t on.
-                apply_landmark_ops(per, await deltas.due_now(last_observed, ctx.realtime))
-            try:
-                p = per.perceive(t, per.vector(msg.values), copy=False,
-                                 discontinuity=msg.discontinuity)
-            except InvalidObservation as exc:
-                exc = _as_sent(per, t, msg, exc)
-                rejected_obs += 1
-                deltas.book.skipped.add(t)
-                actor.counter.reject(sense_key, str(exc))
-                qstate = QState(t, {}, (), {}, rejected=str(exc)[:500])
-            else:
-                last_observed = t
-                qstate = codec.message(p)
-            out.put(t, qstate)
-            actor.slot.done(t)
-            if actor.snapshot_due(t):
-                # The qstate log after the oldest consumer snapshot goes with it: a consumer
-                # restarted from that snapshot after this actor restarted fetches them from
-                # the new process (chaos trials, issue 13).
-                since = actor.oldest_snapshot(CONSUMERS) + 1
-                actor.snapshot(t, lambda d: save_perception(per, d),
-                               last_observed=last_observed,
-                               qstate=[[s, encode(m).decode()] for s, m in out.log.entries(since)])
-        actor.slot.finished()
-        await actor.linger(CONSUMERS)           # a learner behind may ask for a lost qstate
-    return actor.result(rejected_observations=rejected_obs)
+        return await perception.finish()

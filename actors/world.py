@@ -49,6 +49,8 @@ from qlap_runtime.runtime.rules import motor_rule
 from qlap_runtime.runtime.watchdog import slot_of
 
 from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
+from .executor import ExecutorActor
+from .perception import PerceptionActor
 from .resume import applied_motors, restore_world
 
 NAME = "world"
@@ -81,7 +83,13 @@ def bus_values(values: dict, available_from: dict[str, int], t: int) -> tuple[di
     return out, bad
 
 
-async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict:
+async def run(session, ctx: RunContext, ready: trio.Event | None = None,
+              perception: PerceptionActor | None = None,
+              executor: ExecutorActor | None = None) -> dict:
+    """The world actor's loop. In the embedded placement it hosts the rest of the step chain:
+    right after publishing ``sense(t)`` it runs the perception actor's step (``perception``),
+    then the executor's (``executor``), whose ``motor(t)`` is then already in its inbox; after
+    the last step it ends them (their replay logs kept open for the learners behind)."""
     import worlds
 
     world = worlds.make(ctx.world)
@@ -119,6 +127,9 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                               window=None if ctx.realtime else 0,
                               rule=motor_rule(world.variables))
             last_view = 0.0
+            for hosted in (perception, executor):
+                if hosted is not None:
+                    await hosted.start()        # alive: the launcher waits for its token
             if ready is not None:
                 await ready.wait()
             clock = RealtimeClock(controls, counter, slot, ctx.hz) if ctx.realtime \
@@ -137,6 +148,15 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
                 sense = Sense(t, values, bool(getattr(world, "discontinuity", False)))
                 if pub.put(sense) or not (pub.faults and pub.faults.lost):
                     replay.append(t, sense)         # for a perception actor restarted later
+                # This session hands each message to the next actor's inbox during put, so
+                # the hosted steps take it without a wait or a wake-up.
+                if perception is not None:
+                    await perception.step(t)
+                if executor is not None:
+                    await executor.step(t)
+                    # A hosted step chain need not wait for anything: yield once a step, so
+                    # that the other tasks (learners, controls, viewers) keep running.
+                    await trio.lowlevel.checkpoint()
                 t0 = time.perf_counter()
                 motor = await clock.motor(inbox, t)
                 stats["wait_s"] += time.perf_counter() - t0
@@ -177,6 +197,10 @@ async def run(session, ctx: RunContext, ready: trio.Event | None = None) -> dict
             # actors) and pauses excluded: what the benchmarks compare between placements.
             stats["loop_s"] = round(time.perf_counter() - loop_t0 - clock.paused_s, 3)
             stats["paused_s"] = round(clock.paused_s, 3)
+            if executor is not None:
+                await executor.finish(last if clock.state.quit else None)
+            if perception is not None:
+                await perception.finish()
     except BaseException:                       # cancelled (maybe in a group) by a stall
         keep_on_stall(ctx, world=world)         # a stalled run keeps the world's state
         raise

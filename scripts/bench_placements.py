@@ -12,9 +12,14 @@ Usage: scripts/bench_placements.py [--world core] [--steps 6000] [--lag 500] [--
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
+
+# This tree's code, not the installed package's (a worktree measures itself; the processes
+# placement's children inherit the path).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> None:

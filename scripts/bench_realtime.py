@@ -13,6 +13,11 @@ Usage: scripts/bench_realtime.py [--world core] [--steps 4500] [--hz 100]
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
+
+# This tree's code, not the installed package's (a worktree measures itself).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> None:

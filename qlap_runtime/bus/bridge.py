@@ -27,6 +27,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, ClassVar, Generic, TypeVar
 
 import trio
@@ -229,9 +230,10 @@ class TrioSubscriber:
         self.key_expr = key_expr
         self.counter = counter if counter is not None else RejectionCounter()
         self._decode = decode
-        self._inbox: TrioInbox[tuple[str, bytes, int]] = TrioInbox()
+        self._inbox: TrioInbox[tuple[str, bytes, int, Message | None]] = TrioInbox()
         self._routes = LocalRoutes.of(session)
-        self._sub = session.declare_subscriber(key_expr, self._on_sample)
+        self._sub = session.declare_subscriber(
+            key_expr, zenoh.handlers.Callback(self._on_sample, indirect=False))
         self._since = self._routes.add(self)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -240,13 +242,20 @@ class TrioSubscriber:
             att = sample.attachment
             if att is not None and self._routes.delivered(att.to_bytes(), self._since):
                 return                       # a Publisher of this session handed it over
-            self._inbox.push((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+            self._inbox.push((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns(),
+                              None))
         except Exception:
             log.exception("subscriber callback failed on %s", self.key_expr)
 
-    def deliver(self, key: str, payload: bytes) -> None:
-        """A message published on this subscriber's session (:class:`LocalRoutes`)."""
-        self._inbox.push((key, payload, time.time_ns()))
+    def deliver(self, key: str, payload: bytes, msg: Message | None = None) -> None:
+        """A message published on this subscriber's session (:class:`LocalRoutes`): its
+        payload and, from a :class:`Publisher`'s ``put``, the typed message itself, which this
+        subscriber then hands out without decoding it again (it never left the process)."""
+        self._inbox.push((key, payload, time.time_ns(), msg))
+
+    def pending(self) -> int:
+        """Messages that arrived and were not taken yet (not decoded yet)."""
+        return self._inbox.pending()
 
     @property
     def received(self) -> int:
@@ -266,12 +275,13 @@ class TrioSubscriber:
         """Whatever has arrived, without waiting."""
         return self._convert(self._inbox.take_nowait())
 
-    def _convert(self, raw: list[tuple[str, bytes, int]]) -> list[Received]:
+    def _convert(self, raw: list[tuple[str, bytes, int, Message | None]]) -> list[Received]:
         if not self._decode:
-            return [Received(k, None, p, t) for k, p, t in raw]
+            return [Received(k, None, p, t) for k, p, t, _ in raw]
         out = []
-        for k, p, t in raw:
-            msg = self.counter.decode(k, p)
+        for k, p, t, msg in raw:
+            if msg is None:
+                msg = self.counter.decode(k, p)
             if msg is not None:
                 out.append(Received(k, msg, p, t))
         return out
@@ -410,13 +420,14 @@ class Publisher:
         self.sent += 1
         payload = encode(msg)
         if self.faults is None:
-            self._send(payload)
+            self._send(payload, msg)
             return True
-        return self.faults.put(self._send, payload)   # lost or late for everyone
+        return self.faults.put(partial(self._send, msg=msg), payload)   # lost or late
 
-    def _send(self, payload: bytes) -> None:
-        """Hand ``payload`` to the subscribers of this session, then put it on Zenoh for every
-        other subscriber, tagged so that this session's own drop their second copy."""
+    def _send(self, payload: bytes, msg: Message | None = None) -> None:
+        """Hand ``payload`` (and ``msg``, the message it encodes, if known) to the subscribers
+        of this session, then put it on Zenoh for every other subscriber, tagged so that this
+        session's own drop their second copy."""
         version, local, tag = self._local
         if version != self._routes.version:
             version, local = self._routes.matching(self.key)
@@ -426,7 +437,7 @@ class Publisher:
             self._pub.put(payload)
             return
         for sub in local:
-            sub.deliver(self.key, payload)
+            sub.deliver(self.key, payload, msg)
         self._pub.put(payload, attachment=tag)
 
     @property

@@ -31,6 +31,9 @@ from ..runtime.supervisor import Supervisor
 
 ACTORS = ("perception", "contingency", "landmarks", "executor", "world")
 """Every actor of a run; the world starts last (it waits for the others)."""
+CHAIN = ("world", "perception", "executor")
+"""The step chain: in the embedded placement one task runs their steps in turn (the world's
+hosts the others', ``actors.world.run``), so a step needs no wake-up between them."""
 
 
 async def _run_actor(name: str, session: Any, ctx: Any, ready: trio.Event | None = None) -> dict:
@@ -38,6 +41,17 @@ async def _run_actor(name: str, session: Any, ctx: Any, ready: trio.Event | None
 
     if name == "world":
         return await world.run(session, ctx, ready)
+    if name == "chain":                     # embedded: world, perception, executor, one task
+        with perception.PerceptionActor(session, ctx) as per, \
+                executor.ExecutorActor(session, ctx, hosted=True) as ex:
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(ex.between_steps)
+                result = await world.run(session, ctx, ready, perception=per, executor=ex)
+                nursery.cancel_scope.cancel()
+            return {"world": result, "perception": per.result, "executor": ex.result}
+    if name == "contingency" and ctx.placement == "embedded":
+        # Both learners in one task on one learner: {"contingency": …, "landmarks": …}.
+        return await learning.run_pair(session, ctx)
     if name == "perception":
         return await perception.run(session, ctx)
     if name in ("contingency", "landmarks"):
@@ -91,6 +105,14 @@ async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, An
         stop = trio.Event()
 
         async def one(name: str) -> None:
+            if name in CHAIN[1:] or name == "landmarks":
+                return                           # their steps run in another's task
+            if name == "world":
+                results.update(await _run_actor("chain", session, ctx, ready))
+                return
+            if name == "contingency":               # with the landmarks actor
+                results.update(await _run_actor(name, session, ctx, ready))
+                return
             results[name] = await _run_actor(name, session, ctx, ready)
 
         async with trio.open_nursery() as outer:

@@ -49,6 +49,9 @@ LINGER_S = 30.0
 """How long a writer keeps its replay logs open after its last step for consumers that lag
 (:meth:`Actor.linger`)."""
 LINGER_POLL_S = 0.05
+LAZY_S = 0.005
+"""How long an actor off the step chain lets the chain run when it has caught up
+(:meth:`Actor.receive` ``lazy``), so that one wake-up takes several steps."""
 
 
 @dataclass
@@ -215,9 +218,17 @@ class Actor:
         """The steps this actor still has to take."""
         return range(self.resume.step + 1, self.ctx.end)
 
-    async def receive(self, t: int) -> Any | None:
-        """The primary input's message of step ``t``; None when the run ended before it."""
+    async def receive(self, t: int, *, lazy: bool = False) -> Any | None:
+        """The primary input's message of step ``t``; None when the run ended before it.
+
+        ``lazy``: the actor is off the step chain (a learner: nothing on the chain waits for
+        it before step t + L). When step t has not arrived yet it first sleeps
+        :data:`LAZY_S`, so that the chain runs on and the actor then takes every step that
+        came meanwhile in one wake-up, instead of one trio wake-up (a cancel scope, an
+        event, the board) per step."""
         assert self.inbox is not None
+        if lazy and not self.inbox.ready(t):
+            await trio.sleep(LAZY_S)
         try:
             return await self.inbox.get(t)
         except RunEnded:                            # quit: the world took no step t

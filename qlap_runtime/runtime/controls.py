@@ -10,9 +10,8 @@ status. The agent commands (``goal``, ``save``) are :mod:`.runner`'s.
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -102,15 +101,10 @@ class Controls:
         """True when ``step`` lies after the run's announced last step."""
         return self.last_step is not None and step > self.last_step
 
-    @contextmanager
-    def interruptible(self) -> Iterator[trio.CancelScope]:
-        """A cancel scope that the end marker cancels (wrap a wait for the next step)."""
-        with trio.CancelScope() as scope:
-            self._scopes.add(scope)
-            try:
-                yield scope
-            finally:
-                self._scopes.discard(scope)
+    def interruptible(self, deadline: float = math.inf) -> Interruptible:
+        """A cancel scope that the end marker cancels (wrap a wait for the next step), with
+        an optional trio ``deadline``: one scope serves both."""
+        return Interruptible(self._scopes, deadline)
 
     def close(self) -> None:
         try:
@@ -123,6 +117,27 @@ class Controls:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class Interruptible:
+    """:meth:`Controls.interruptible`: a :class:`trio.CancelScope` registered with the
+    controls while it is entered (a plain class: a ``contextmanager`` generator around it cost
+    as much again on every wait of the step chain)."""
+
+    __slots__ = ("scope", "scopes")
+
+    def __init__(self, scopes: set[trio.CancelScope], deadline: float) -> None:
+        self.scopes = scopes
+        self.scope = trio.CancelScope(deadline=deadline)
+
+    def __enter__(self) -> trio.CancelScope:
+        scope = self.scope.__enter__()
+        self.scopes.add(scope)
+        return scope
+
+    def __exit__(self, *exc: Any) -> bool:
+        self.scopes.discard(self.scope)
+        return self.scope.__exit__(*exc)
 
 
 MIN_SPEED, MAX_SPEED = 0.01, 1e6

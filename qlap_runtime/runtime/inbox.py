@@ -9,9 +9,9 @@ ask the writers' replay logs again for what does not come in time (a lost messag
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Awaitable, Callable
-from contextlib import nullcontext
 from typing import TYPE_CHECKING, Any
 
 import trio
@@ -145,6 +145,12 @@ class StepInbox:
         for r in self.sub.receive_nowait():
             self.add(r.msg, len(r.payload))
 
+    def ready(self, step: int) -> bool:
+        """Whether step ``step``'s message is here (what has arrived is kept first)."""
+        if step not in self.buf:
+            self.drain()
+        return step in self.buf
+
     def latest(self) -> Any | None:
         """The newest message held, keeping only it (the realtime clock's batch context:
         the next batch may have no newer one); None when none is held."""
@@ -169,9 +175,12 @@ class StepInbox:
     async def get(self, step: int, at: int | None = None) -> Any:
         """Step ``step``'s message (waited for; the wait is on the board, before passing step
         ``at``, by default ``step``)."""
-        if step not in self.buf:
-            with self.slot.waiting(self.topic, step, at):
+        if not self.ready(step):                # what has arrived first: no wait then
+            self.slot.wait(self.topic, step, at)
+            try:
                 await self._wait_for(step)
+            finally:
+                self.slot.clear()
         self.next = max(self.next, step + 1)
         self.pending_bytes -= self.sizes.pop(step, 0)
         return self.buf.pop(step)
@@ -183,12 +192,12 @@ class StepInbox:
             if end is not None and end.ended(step):
                 raise RunEnded(end.last_step)       # type: ignore[arg-type]
             batch: list = []
-            with end.interruptible() if end is not None else nullcontext():
-                if refills is None:
-                    batch = await self.sub.receive_batch()
-                else:
-                    with trio.move_on_at(refills.deadline):
-                        batch = await self.sub.receive_batch()
+            # One cancel scope per wait (they cost more than the rest of a step's wait): the
+            # refill deadline, cancelled early by the end marker.
+            deadline = math.inf if refills is None else refills.deadline
+            with end.interruptible(deadline) if end is not None \
+                    else trio.CancelScope(deadline=deadline):
+                batch = await self.sub.receive_batch()
             for r in batch:
                 self.add(r.msg, len(r.payload))
             if refills is None or step in self.buf or (end and end.ended(step)):
@@ -316,7 +325,11 @@ class DeltaInbox:
         return len(msgs)
 
     async def due(self, step: int) -> list:
-        self.drain()
+        if self.sub.pending():
+            self.drain()
+        if self.book.none_due(step):            # most steps: nothing to hand out
+            self.book.last = step
+            return []
         if not self.book.ready(step):
             self.book.waits += 1
             t0 = time.perf_counter()

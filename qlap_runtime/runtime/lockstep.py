@@ -55,6 +55,14 @@ class DeltaBook:
             out += [(computed, kind) for kind in batch_kinds(self.params, computed)]
         return out
 
+    def none_due(self, step: int) -> bool:
+        """True when no delta of the schedule applies in (last step asked, step]: most steps,
+        decided without listing them (every batch step is a positive multiple of
+        ``dbn_period``)."""
+        lag, period = self.params.batch_lag, self.params.dbn_period
+        lo, hi = max(self.last + 1 - lag, 1), step - lag
+        return hi < lo or -(-lo // period) * period > hi
+
     def ready(self, step: int) -> bool:
         return all(k in self.received for k in self.due_keys(step))
 

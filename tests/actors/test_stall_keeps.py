@@ -31,7 +31,10 @@ def test_a_stalled_embedded_run_writes_a_final_checkpoint(tmp_path, monkeypatch)
     async def stuck_contingency(name, session, ctx, ready=None):
         if name != "contingency":
             return await real(name, session, ctx, ready)
-        with declare_alive(session, ctx.run_id, name):
+        # In the embedded placement the contingency actor's task carries the landmarks
+        # actor too (docs/decisions.md 54): both are alive and stuck.
+        with declare_alive(session, ctx.run_id, name), \
+                declare_alive(session, ctx.run_id, "landmarks"):
             await trio.sleep_forever()
 
     monkeypatch.setattr(launcher, "_run_actor", stuck_contingency)
