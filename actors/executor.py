@@ -34,7 +34,7 @@ from qlap_runtime.qlap.checkpoint import (
     save_final_checkpoint,
     save_step_checkpoint,
 )
-from qlap_runtime.runtime.actor import Actor
+from qlap_runtime.runtime.actor import Actor, ActorBase
 from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.controls import RunControl
 from qlap_runtime.runtime.lockstep import batch_kinds
@@ -50,7 +50,7 @@ END_MARKER_S = 5.0
 """How long a hosted executor waits for the world's end marker to reach its controls."""
 
 
-class ExecutorActor:
+class ExecutorActor(ActorBase):
     """The executor actor: its agent, its inputs and outputs, one step of its loop, its end.
 
     Standalone (:func:`run`) it is a task of its own. In the embedded placement the world's task
@@ -223,9 +223,6 @@ class ExecutorActor:
     def close(self) -> None:
         self._end()
         self.actor.close()
-
-    def __enter__(self) -> ExecutorActor:
-        return self
 
     def __exit__(self, exc_type: Any, *exc: object) -> None:
         if exc_type is not None:                # cancelled (maybe in a group) by a stall

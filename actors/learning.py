@@ -26,7 +26,7 @@ from qlap_runtime.bus.schema import BatchContext, DeltaMsg
 from qlap_runtime.qlap.checkpoint import load_learner, save_learner
 from qlap_runtime.qlap.delta import Delta
 from qlap_runtime.qlap.learner import ModelLearner
-from qlap_runtime.runtime.actor import Actor, Output, to_thread
+from qlap_runtime.runtime.actor import Actor, ActorBase, Output, to_thread
 from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.inbox import RunEnded, StepInbox
 from qlap_runtime.runtime.lockstep import batch_kinds
@@ -42,7 +42,7 @@ CONSUMERS = ("perception", "contingency", "landmarks", "executor")
 """Every actor that applies deltas."""
 
 
-class LearnerActor:
+class LearnerActor(ActorBase):
     """One batch-learning actor (``role`` contingency or landmarks): its learner, inputs and
     outputs, and its loop's step in three phases — :meth:`observe` (Algorithm 2 lines 2–5),
     :meth:`batch` (lines 6–9 or 6–13 on a copy) and :meth:`settle` (the deltas due, the
@@ -179,14 +179,6 @@ class LearnerActor:
                                         batch_s=round(sum(self.batch_s), 3))
         return self.result
 
-    def close(self) -> None:
-        self.actor.close()
-
-    def __enter__(self) -> LearnerActor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:

@@ -14,7 +14,7 @@ from qlap_runtime.qlap.delta import AddLandmark
 from qlap_runtime.qlap.perception import InvalidObservation, Perception
 from qlap_runtime.qlap.quantity import Landmark
 from qlap_runtime.qlap.variables import VariableTable
-from qlap_runtime.runtime.actor import Actor
+from qlap_runtime.runtime.actor import Actor, ActorBase
 from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.snapshot import load_perception, save_perception
 
@@ -54,7 +54,7 @@ def _as_sent(per: Perception, t: int, msg, exc: InvalidObservation) -> InvalidOb
     return exc
 
 
-class PerceptionActor:
+class PerceptionActor(ActorBase):
     """The perception actor: its state, its inputs and outputs, and one step of its loop.
 
     Standalone (:func:`run`) it is a task of its own. In the embedded placement the world's task
@@ -133,14 +133,6 @@ class PerceptionActor:
         self.result = self.actor.result(rejected_observations=self.rejected_obs)
         return self.result
 
-    def close(self) -> None:
-        self.actor.close()
-
-    def __enter__(self) -> PerceptionActor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 async def run(session: Any, ctx: RunContext) -> dict[str, Any]:

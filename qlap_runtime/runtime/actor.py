@@ -27,7 +27,7 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import trio
 
@@ -289,6 +289,22 @@ class Actor:
         self._stack.close()
 
     def __enter__(self) -> Actor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class ActorBase:
+    """Base of an actor's class (``actors/*``): it owns an :class:`Actor` and closes it when it
+    is closed itself, also as a context manager."""
+
+    actor: Actor
+
+    def close(self) -> None:
+        self.actor.close()
+
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
