@@ -557,8 +557,10 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
                  + ([["mean", describe_verdict(data["growth_mean"])]] if n > 1 else [])), ""]
 
     L += ["## Speed of the synchronous loop", "",
-          f"Agent steps per second of each run's loop (`summary.json` `steps_per_s`), "
-          f"{cfg.jobs} run(s) at a time on {cores} cores. Target: a mean of at least "
+          "Agent steps per second of each run's loop as the run recorded it (`summary.json` "
+          f"`steps_per_s`); the runs this command makes run {cfg.jobs} at a time on {cores} "
+          "cores, and a finished run already in the runs directory is reused as it is. "
+          "Target: a mean of at least "
           f"{ref.SYNC_STEPS_PER_S:,.0f} steps/s over a 250,000-step core run (a benchmark, "
           "not a test).", "",
           _table(["run", "steps/s", "wall time (s)", "placement"],
