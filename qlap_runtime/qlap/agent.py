@@ -693,17 +693,10 @@ class Agent:
         # Actions not achieved now (:meth:`_achieved`) with a usable plan (known state, from
         # the current side: :meth:`_usable_plans`), tested for all plans at once.
         found, usable = groups.usable(p.q, self._magnitude_vars())
-        cache = self.__dict__.setdefault("_iac_cache", {})
         for g in found:
             key = groups.keys[g]
             stats = self.actions[key]
-            # _iac_weight's cached value, looked up here (this loop runs over every action)
-            hit = cache.get(id(stats))
-            if hit is not None and hit[0] is stats and hit[1] is stats.history \
-                    and hit[2] == stats.calls and hit[3] == len(stats.history):
-                w = hit[4]
-            else:
-                w = self._iac_weight(stats)
+            w = self._iac_weight(stats)
             if w is None:                 # fewer than 50 calls: eq. 6.2 with the chosen plan
                 plans = [pl for pl, r in zip(groups.groups[g], groups.rows[g], strict=True)
                          if usable[r]]

@@ -27,6 +27,28 @@ def _brel_gain(new: float | None, old: float | None) -> float:
     return new - old
 
 
+def _segment_entropies(s: np.ndarray, f: np.ndarray, offs: np.ndarray, n_cells: np.ndarray,
+                       prior: float) -> np.ndarray:
+    """Per segment of cells (one candidate context each): H(r) of eq. 4.15 from its success and
+    failure counts, as one vectorised pass (1 where a segment has no counts); a fast estimate,
+    whose near-ties are decided by :func:`~.probability.dbn_entropy`."""
+    tot = s + f
+    seg_tot = np.add.reduceat(tot, offs)
+    pe = (s + prior) / (tot + 2.0 * prior)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        terms = binary_entropy_array(pe) * (tot / np.repeat(seg_tot, n_cells))
+    return np.where(seg_tot > 0, np.add.reduceat(np.nan_to_num(terms), offs), 1.0)
+
+
+def _segment_best_rel(s: np.ndarray, f: np.ndarray, offs: np.ndarray,
+                      params: Params) -> np.ndarray:
+    """Per segment of cells: its best reliability (App. B.1), −1 where no cell has enough
+    successes (⊥)."""
+    rel = (s + params.prior) / (s + f + 2.0 * params.prior)
+    rel = np.where(s >= params.brel_min_successes, rel, -1.0)
+    return np.maximum.reduceat(rel, offs)
+
+
 def is_model_improvement(r: ModelStats, r2: ModelStats, params: Params) -> bool:
     """Algorithm 1: is r' (``r2``) a sufficient improvement over r? (§4.3.1)
 
@@ -168,22 +190,14 @@ class StoredActivations:
         s = np.bincount(idx, weights=w, minlength=total)
         f = np.bincount(idx, minlength=total).astype(float) - s
         if by_entropy:
-            tot = s + f
-            seg_tot = np.add.reduceat(tot, offs)
-            pe = (s + p.prior) / (tot + 2.0 * p.prior)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                terms = binary_entropy_array(pe) * (tot / np.repeat(seg_tot, n_cells))
-            approx = np.where(seg_tot > 0, np.add.reduceat(np.nan_to_num(terms), offs), 1.0)
+            approx = _segment_entropies(s, f, offs, n_cells, p.prior)
             short = np.flatnonzero(approx <= approx.min() + _TOL)
             best = min((dbn_entropy(s[offs[j]:offs[j] + n_cells[j]],
                                     f[offs[j]:offs[j] + n_cells[j]], p.prior), int(opts[j]), j)
                        for j in short.tolist())
             j = best[2]
         else:
-            rel = (s + p.prior) / (s + f + 2.0 * p.prior)
-            rel = np.where(s >= p.brel_min_successes, rel, -1.0)
-            seg_max = np.maximum.reduceat(rel, offs)
-            j = int(np.lexsort((opts, -seg_max))[0])
+            j = int(np.lexsort((opts, -_segment_best_rel(s, f, offs, p)))[0])
         a, b = int(offs[j]), int(offs[j] + n_cells[j])
         return int(opts[j]), model_stats(s[a:b], f[a:b], m + 1, p)
 
@@ -298,16 +312,9 @@ def update_contexts_many(problems: Sequence[ContextProblem], sizes,
             f = counts[0::2].astype(float)
         ent = [r[2] for r in rounds]
         if any(ent):
-            tot = s + f
-            seg_tot = np.add.reduceat(tot, offs)
-            pe = (s + p.prior) / (tot + 2.0 * p.prior)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                terms = binary_entropy_array(pe) * (tot / np.repeat(seg_tot, seg_n))
-            approx = np.where(seg_tot > 0, np.add.reduceat(np.nan_to_num(terms), offs), 1.0)
+            approx = _segment_entropies(s, f, offs, seg_n, p.prior)
         if not all(ent):
-            rel = (s + p.prior) / (s + f + 2.0 * p.prior)
-            rel = np.where(s >= p.brel_min_successes, rel, -1.0)
-            seg_max = np.maximum.reduceat(rel, offs)
+            seg_max = _segment_best_rel(s, f, offs, p)
         still = []
         for (i, opts, by_entropy), s0 in zip(rounds, first_seg.tolist(), strict=True):
             k = len(opts)
