@@ -104,12 +104,15 @@ class Pilot:
 
 
 async def test_pause_single_step_goal_save_speed_and_resume(tmp_path):
-    steps = 1500
+    steps = 3000
     ctx = context(tmp_path, "ctl-ui", steps, seed=1)
     seen: dict[str, Any] = {}
 
     async def script(p: Pilot) -> None:
         await p.until(lambda: p.step >= 100 and p.status is not None)
+        # Paced, so that the run cannot end before the script has paused it: unpaced, the
+        # embedded chain makes these steps in about a second.
+        p.put("speed", steps_per_s=400)
         # Another run's control, and malformed ones: ignored (counted), the run goes on.
         p.session.put("qlap/another-run/control", encode(Control("pause")))
         p.session.put(keys.key(ctx.run_id, "control"), b"{not json")
@@ -168,6 +171,8 @@ async def test_a_paused_and_resumed_run_learns_what_an_uninterrupted_run_learns(
     expected = sync_knowledge(ctx, steps)
 
     async def script(p: Pilot) -> None:
+        await p.until(lambda: p.step >= 1)
+        p.put("speed", steps_per_s=600)            # paced: the last pause comes before the end
         for at in (300, 1020):                     # before babbling ends; a batch in flight
             await p.until(lambda at=at: p.step >= at)
             p.put("pause")
