@@ -593,3 +593,26 @@ def test_a_sub_action_that_fails_as_it_is_called_gets_a_terminal_sarsa_update():
     assert s == plan.space.index_from_full(p.q)
     agent.end_trial()                       # learning off: the trial's Sarsa is undone
     assert np.array_equal(plan.q, before)
+
+
+def test_a_change_action_called_while_its_goal_holds_fails_at_its_call(trained, tmp_path):
+    """§5.2.1 footnote 2 lets a plan's policy call a(ẋ, [+]) while ẋ = [+] already. Every state
+    of that action's own plans with ẋ = [+] is a goal state with no action to choose, so the
+    call fails on the step it is made and rel(a) counts one failure (docs/decisions.md 70:
+    the reading that lets it succeed at the next step was measured, and made tasks worse)."""
+    save_agent(trained[0], tmp_path / "ck")
+    agent = load_agent(tmp_path / "ck")
+    up = key_of(agent, "x.dot", 2)
+    t = agent.step_count + 1
+    agent.call_list, agent.goal = [], None
+    agent.step(t, {"x": 5.0})
+    agent.step(t + 1, {"x": 5.4})                     # x rose: ẋ = [+]
+    p = agent._last_percept
+    assert agent._achieved(up, p)
+    plan = agent._usable_plans(up, p, agent._plan_groups().plans_of(up))[0]
+    assert plan.model.goal[agent._plan_state(plan, p)]           # a goal state of its plan
+    stats = agent.actions[up]
+    calls, failures = stats.calls, stats.failures
+    agent.call_list = []
+    assert agent._call(up, p) == FAIL and agent.call_list == []
+    assert (stats.calls, stats.failures) == (calls + 1, failures + 1)
