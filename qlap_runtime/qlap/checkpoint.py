@@ -610,15 +610,16 @@ def load_agent(directory: str | Path) -> Any:
             pl.call_ok = arrays[f"plan.{pid}.call_ok"].astype(bool)
             pl.cpt_s = arrays[f"plan.{pid}.cpt_s"].astype(float)
             pl.cpt_f = arrays[f"plan.{pid}.cpt_f"].astype(float)
-            agent.restore_plan(pl)
             if "q" in d:                                        # version 1
-                pl.q = q_from_state(d["q"])
+                q = q_from_state(d["q"])
             elif f"plan.{pid}.q" in arrays:                    # version 2
                 q = arrays[f"plan.{pid}.q"].astype(float)
-                pl.q = np.where(np.isfinite(q), q, NOT_APPLICABLE)
+                q = np.where(np.isfinite(q), q, NOT_APPLICABLE)
             else:
-                pl.q = _unpack_q(tuple(int(n) for n in d["q_shape"]),
-                                 arrays[f"plan.{pid}.q_na"], arrays[f"plan.{pid}.q_values"])
+                q = _unpack_q(tuple(int(n) for n in d["q_shape"]),
+                              arrays[f"plan.{pid}.q_na"], arrays[f"plan.{pid}.q_values"])
+            agent.restore_plan(pl, q)           # the saved Q-table: no value iteration
+            pl.q = q
             traces = arrays[f"plan.{pid}.traces"]
             pl.sarsa = SarsaLambda(pl.q, learner.params,
                                    traces.astype(float) if traces.size else None)

@@ -160,6 +160,16 @@ class ModelLearner:
                 self.pending_deltas.append(delta)
         return p
 
+    _batch_work: ModelLearner | None = None
+
+    def take_batch(self) -> ModelLearner | None:
+        """The learner of the batch computed at the latest step, with the batch's operations
+        applied, for the plan compilation that follows it (Algorithm 2 line 15); once, None
+        when no batch was computed since the last call. With a lag it is the batch's own copy,
+        else a copy of this learner."""
+        work, self._batch_work = self._batch_work, None
+        return self.batch_copy() if work is self else work
+
     def _update_window(self, p: Percept) -> None:
         motor_events = [(e.var, int(i)) for e, i in zip(p.events, p.event_ids, strict=True)
                         if self.table[e.var].kind is Kind.MOTOR]
@@ -329,6 +339,7 @@ class ModelLearner:
                       apply_at=step + self.params.batch_lag, ops=ops)
         if work is self:
             delta = delta.mark_applied()
+        self._batch_work = work
         return delta
 
     def batch_copy(self) -> ModelLearner:
@@ -389,7 +400,11 @@ class ModelLearner:
         for arr in (self.perception.hist_x, self.perception.hist_q):
             memo[id(arr)] = arr
         memo[id(self.pending_deltas)] = deque()
-        return copy.deepcopy(self, memo)
+        work, self._batch_work = self._batch_work, None     # never part of a copy
+        try:
+            return copy.deepcopy(self, memo)
+        finally:
+            self._batch_work = work
 
     def _refresh_reliability(self) -> None:
         """Sticky "sufficiently reliable at any time" flags from the CPTs (§4.2.2)."""
