@@ -1,15 +1,26 @@
-"""Bus messages ↔ the algorithm's objects: ``qstate`` ↔ :class:`Percept`, and the executor's
-state a batch reads (``batchctx``, §6.2.1)."""
+"""Bus messages ↔ the algorithm's objects: ``qstate`` ↔ :class:`Percept`, the executor's
+state a batch reads (``batchctx``, §6.2.1) and the agent a plan compilation reads
+(``planreq``, Algorithm 2 line 15)."""
 
 from __future__ import annotations
 
+import base64
+import tempfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from qlap_runtime.bus.schema import BatchContext, QState
+from qlap_runtime.bus.schema import BatchContext, PlanRequest, QState
+from qlap_runtime.qlap.agent import Agent
+from qlap_runtime.qlap.checkpoint import load_agent, save_agent
+from qlap_runtime.qlap.delta import Delta
 from qlap_runtime.qlap.perception import Percept
+from qlap_runtime.qlap.plan_delta import PlanDelta
 from qlap_runtime.qlap.variables import Event, VariableTable
+
+REQUEST_FILES = ("agent.json", "agent.npz", "learner.json", "learner.npz")
+"""The checkpoint files a ``planreq`` carries (``save_agent``'s, docs/checkpoint.md)."""
 
 
 class QStateCodec:
@@ -64,3 +75,24 @@ def apply_batch_context(learner: Any, msg: BatchContext) -> None:
     plans = set(msg.plan_dbns)
     for dbn_id, dbn in learner.dbns.items():
         dbn.is_plan = dbn_id in plans
+
+
+def plan_request(agent: Agent, step: int) -> PlanRequest:
+    """``planreq(step)``: the executor's agent as a checkpoint (no pickle), for the planner."""
+    with tempfile.TemporaryDirectory(prefix="qlap-planreq-") as tmp:
+        save_agent(agent, tmp)
+        files = {name: base64.b64encode((Path(tmp) / name).read_bytes()).decode()
+                 for name in REQUEST_FILES}
+    return PlanRequest(step, files)
+
+
+def compile_request(msg: PlanRequest, deltas: list[Delta], lag: int) -> PlanDelta:
+    """The planner's work: the request's agent, the batch's ``deltas`` applied to its learner,
+    compiled (:meth:`~qlap_runtime.qlap.agent.Agent.compile_plans`)."""
+    with tempfile.TemporaryDirectory(prefix="qlap-planreq-") as tmp:
+        for name in REQUEST_FILES:
+            (Path(tmp) / name).write_bytes(base64.b64decode(msg.files[name], validate=True))
+        agent = load_agent(tmp)
+    for d in deltas:
+        agent.learner.apply_delta(d)
+    return agent.compile_plans(msg.step, msg.step + lag)

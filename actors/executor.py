@@ -24,7 +24,7 @@ from typing import Any
 
 import trio
 
-from qlap_runtime.bus.schema import Motor, encode
+from qlap_runtime.bus.schema import Motor, PlanRequest, encode
 from qlap_runtime.metrics import METRICS_FILE, MetricsLog, summary_of
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import (
@@ -42,7 +42,8 @@ from qlap_runtime.runtime.rules import qstate_rule
 from qlap_runtime.runtime.runner import BoundaryCommands, Display, Runner
 
 from .checkpoint_parts import gather_final_parts, keep_on_stall
-from .convert import QStateCodec, batch_context
+from .convert import QStateCodec, batch_context, plan_request
+from .planner import PlanInbox
 from .resume import checkpoint_of
 
 NAME = "executor"
@@ -82,11 +83,15 @@ class ExecutorActor(ActorBase):
         self.codec = QStateCodec(agent.table)
         actor.input("qstate", window=1, rule=qstate_rule(self.codec.names))
         self.deltas = actor.deltas(len(agent.table))
+        self.plans = PlanInbox(actor, ctx, self.deltas.book)
         self.motors, self.contexts = actor.output("motor"), actor.output("batchctx")
+        self.requests = actor.output("planreq")
         # batchctx(s) of a batch at s + 1 went out before the snapshot at s, so a restarted
         # executor never publishes it again: its snapshot carries the logged ones, served
-        # again to a batch actor restarted later from an older snapshot (docs/runtime.md).
+        # again to a batch actor restarted later from an older snapshot (docs/runtime.md);
+        # so for planreq and the planner.
         actor.restore_log(self.contexts, resume.state.get("batchctx", []))
+        actor.restore_log(self.requests, resume.state.get("planreq", []))
         hz = ctx.hz if ctx.realtime else 0.0
         self.runner = Runner(agent, ctx.world, clock=RunControl(speed=hz, default_speed=hz),
                              out=ctx.out, counter=actor.counter, key=actor.controls.key,
@@ -129,8 +134,11 @@ class ExecutorActor(ActorBase):
             msg = await actor.receive(t)
         if msg is None:
             return False
+        ask = t in self.plans.asked
         if msg.rejected:
             self.deltas.book.skipped.add(t)
+            if ask:
+                self.requests.put(t, PlanRequest(t, rejected=True))
             self.rejected.append(f"step {t}: {msg.rejected}")
             motor = Motor(t, dict(agent.motor))
         else:
@@ -139,9 +147,14 @@ class ExecutorActor(ActorBase):
             # current values with the new landmarks. Waited for before observing: a cancel
             # (a stall) leaves the agent at a step boundary, which keep_on_stall saves.
             due = await self.deltas.due_now(t, ctx.realtime)
+            lag = ctx.params.batch_lag
+            plans = await self.plans.due(t) if lag else []
             p = agent.learner.observe_percept(self.codec.percept(msg))
+            if ask:                             # the state the batch at t copies
+                self.requests.put(t, plan_request(agent, t))
             for d in due:
                 agent.learner.apply_delta(d)
+            agent.pending_plans.extend(plans if lag else await self.plans.due(t))
             motor = Motor(t, dict(agent.decide(p)))
         if batch_kinds(ctx.params, t + 1) and t + 1 < ctx.end:
             # Before motor(t): the batch at t + 1 reads this state (§6.2.1).
@@ -161,7 +174,9 @@ class ExecutorActor(ActorBase):
         if actor.snapshot_due(t):
             actor.snapshot(t, lambda d: save_agent(agent, d), rejected=self.rejected,
                            batchctx=[[s, encode(m).decode()]
-                                     for s, m in self.contexts.log.entries()])
+                                     for s, m in self.contexts.log.entries()],
+                           planreq=[[s, encode(m).decode()]
+                                    for s, m in self.requests.log.entries()])
         if self.hosted:
             commands.at_boundary = True         # the world goes on: commands may apply
         return True
@@ -206,7 +221,7 @@ class ExecutorActor(ActorBase):
             atomic_write_json(out / "actors" / f"{NAME}.json", summary)
         # Outputs first (a failed world waits for the other actors' tokens, then reads
         # them); then a batch actor behind may still ask for a lost batch context.
-        await self.actor.linger(("contingency", "landmarks"))
+        await self.actor.linger(("contingency", "landmarks", "planner"))
         if ctx.placement == "distributed":      # no launcher: the executor places them
             await gather_final_parts(self.actor.session, ctx)
         return self.result

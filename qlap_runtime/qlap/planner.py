@@ -121,8 +121,8 @@ class Plan:
         changed (state and action indices of the old space are void).
 
         ``planned``: Q* of the new model computed elsewhere (a plan compilation, §5.2.2), used
-        instead of value iteration here when it has the model's shape; :attr:`last_planned` is the Q* this build computed
-        itself (None when it needed none).
+        instead of value iteration here when it has the model's shape; :attr:`last_planned`
+        is the Q* this build computed itself (None when it needed none).
         """
         self.last_planned = None
         g = dbn.consequent                       # landmarks may have renumbered it
