@@ -1,0 +1,179 @@
+"""The executor actor's parts besides its step (``actors/executor.py``): where its agent comes
+from, what it tells the batch actors and the planner, its controls and display, and its files.
+
+- :func:`load_executor_agent`: a snapshot's agent, a resumed run's checkpoint's, or a fresh one;
+  its learner a follower (docs/runtime.md).
+- :class:`BatchLinks`: ``batchctx`` for the batch actors (§6.2.1), ``planreq`` for the planner
+  and the plan deltas it answers (Algorithm 2 line 15, docs/decisions.md 56), with their replay
+  logs kept in the executor's snapshots.
+- :class:`Controls`: the runner contract shared with the terminal UI's local runner
+  (:mod:`qlap_runtime.runtime.runner`): commands at step boundaries and the display topics.
+- :class:`Files`: the metrics log, periodic checkpoints, and ``knowledge.json``, the final
+  checkpoint and the summary at the end, as the synchronous loop writes them.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import trio
+
+from qlap_runtime.bus.schema import PlanRequest, encode
+from qlap_runtime.metrics import METRICS_FILE, MetricsLog, summary_of
+from qlap_runtime.qlap.agent import Agent
+from qlap_runtime.qlap.checkpoint import (
+    atomic_write_json,
+    load_agent,
+    save_final_checkpoint,
+    save_step_checkpoint,
+)
+from qlap_runtime.qlap.perception import Percept
+from qlap_runtime.runtime.actor import Actor, Resume
+from qlap_runtime.runtime.context import RunContext, world_variables
+from qlap_runtime.runtime.controls import RunControl
+from qlap_runtime.runtime.lockstep import DeltaBook, batch_kinds
+from qlap_runtime.runtime.runner import BoundaryCommands, Display, Runner
+
+from .convert import batch_context, plan_request
+from .planner import PlanInbox
+from .resume import checkpoint_of
+
+
+def load_executor_agent(ctx: RunContext, resume: Resume) -> tuple[Agent, Path | None]:
+    """The executor's agent (its learner a follower: statistics, no batches) and the resumed
+    run's checkpoint it came from, if any."""
+    checkpoint = checkpoint_of(ctx, resume.path)
+    agent = load_agent(resume.path) if resume.path is not None \
+        else load_agent(checkpoint) if checkpoint is not None \
+        else Agent(world_variables(ctx.world)[0], ctx.params, seed=ctx.seed)
+    agent.learner.pending_deltas.clear()    # a resumed run's: refused before the run
+    agent.pending_plans.clear()
+    agent.learner.auto_batches = False
+    agent.learner.follower = True
+    return agent, checkpoint
+
+
+class BatchLinks:
+    """What the executor tells the batch actors and the planner, and the plan deltas."""
+
+    def __init__(self, actor: Actor, ctx: RunContext, book: DeltaBook) -> None:
+        self.ctx = ctx
+        self.plans = PlanInbox(actor, ctx, book)
+        self.contexts, self.requests = actor.output("batchctx"), actor.output("planreq")
+        # batchctx(s) of a batch at s + 1 and planreq(s) went out before the snapshot at s,
+        # so a restarted executor never publishes them again: its snapshot carries the
+        # logged ones, served again to an actor restarted later from an older snapshot.
+        actor.restore_log(self.contexts, actor.resume.state.get("batchctx", []))
+        actor.restore_log(self.requests, actor.resume.state.get("planreq", []))
+
+    def resumed(self, agent: Agent) -> None:
+        """A resumed run starting on a batch step N: that batch reads the checkpoint's agent
+        (the uninterrupted run's executor published it before motor(N − 1))."""
+        ctx = self.ctx
+        if batch_kinds(ctx.params, ctx.start) and ctx.start < ctx.end:
+            self.contexts.put(ctx.start - 1, batch_context(agent, ctx.start - 1))
+
+    def rejected(self, t: int) -> None:
+        if t in self.plans.asked:
+            self.requests.put(t, PlanRequest(t, rejected=True))
+
+    def observed(self, agent: Agent, t: int) -> None:
+        """After observing ``qstate(t)``, before the deltas due at t: the state the batch at
+        t copies, which the planner compiles."""
+        if t in self.plans.asked:
+            self.requests.put(t, plan_request(agent, t))
+
+    def decided(self, agent: Agent, t: int) -> None:
+        """Before ``motor(t)``: the batch at t + 1 reads this state (§6.2.1)."""
+        if batch_kinds(self.ctx.params, t + 1) and t + 1 < self.ctx.end:
+            self.contexts.put(t, batch_context(agent, t))
+
+    def logs(self) -> dict[str, list]:
+        """The replay logs a snapshot keeps."""
+        return {name: [[s, encode(m).decode()] for s, m in out.log.entries()]
+                for name, out in (("batchctx", self.contexts), ("planreq", self.requests))}
+
+
+class Controls:
+    """The runner contract (controls, goals, saves) and the display topics of the executor;
+    while no step flows (paused), a side task applies the commands and publishes the
+    status."""
+
+    def __init__(self, session: Any, ctx: RunContext, agent: Agent, actor: Actor) -> None:
+        hz = ctx.hz if ctx.realtime else 0.0
+        self.agent = agent
+        self.runner = Runner(agent, ctx.world, clock=RunControl(speed=hz, default_speed=hz),
+                             out=ctx.out, counter=actor.counter, key=actor.controls.key,
+                             run_id=ctx.run_id)
+        self.display = Display(session, ctx.run_id, placement=ctx.placement or "embedded",
+                               world=ctx.world, seed=ctx.seed, actor=actor.name)
+        self.clock_name = "realtime" if ctx.realtime else "lockstep"
+        self.commands = BoundaryCommands(actor.controls, self.runner, self.publish)
+        self.side = trio.CancelScope()
+
+    def publish(self, force: bool) -> None:
+        self.display.publish(self.agent, self.runner.clock, clock_name=self.clock_name,
+                             force=force)
+
+    async def between_steps(self) -> None:
+        with self.side:
+            await self.commands.between_steps()
+
+    def last(self, steps_done: int) -> None:
+        """The run is over: the last commands and the final status."""
+        self.side.cancel()                      # no command or status from the side now
+        self.commands.at_boundary = False
+        self.commands.apply()
+        self.runner.finished = True
+        self.display.finish()
+        if not self.runner.message.startswith("run ended"):
+            self.runner.message = f"finished {steps_done} steps"
+        self.publish(True)
+
+
+class Files:
+    """The executor's outputs (nothing without ``ctx.out``)."""
+
+    def __init__(self, ctx: RunContext, agent: Agent, start: int) -> None:
+        self.ctx, self.agent, self.t_start = ctx, agent, time.perf_counter()
+        self.metrics = MetricsLog(Path(ctx.out) / METRICS_FILE, agent, start=start,
+                                  every=ctx.metrics_every) if ctx.out is not None else None
+        # The last periodic checkpoint: (agent step, agent commands applied by then, its path).
+        self.last_saved: tuple[int, int, Path | None] = (-1, -1, None)
+        self.closed = False
+
+    def after_step(self, t: int, p: Percept | None, changes: int) -> None:
+        """The metrics of step t and, after an accepted step, the periodic checkpoint."""
+        ctx, agent = self.ctx, self.agent
+        if self.metrics is not None:
+            self.metrics.after_step(t + 1, agent)
+        if p is not None and ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
+            self.last_saved = (agent.step_count, changes, save_step_checkpoint(
+                agent, Path(ctx.out) / "checkpoints", t + 1, ctx.world, ctx.keep_checkpoints))
+
+    def final(self, steps: int, changes: int, rejected: list[str]) -> None:
+        """``knowledge.json``, ``checkpoints/final`` and the executor's summary."""
+        ctx, agent = self.ctx, self.agent
+        if ctx.out is None:
+            return
+        out = Path(ctx.out)
+        atomic_write_json(out / "knowledge.json", agent.knowledge())
+        # final links to the last step-N when nothing changed the agent since (no step, no
+        # goal command): the same state, not a copy.
+        same = self.last_saved[2] if self.last_saved[:2] == (agent.step_count, changes) \
+            else None
+        save_final_checkpoint(agent, out / "checkpoints", ctx.world, same_as=same)
+        summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed, steps,
+                             self.wall(), rejected)
+        atomic_write_json(out / "actors" / "executor.json", summary)
+
+    def wall(self) -> float:
+        return time.perf_counter() - self.t_start
+
+    def close(self, steps: int) -> None:
+        """The metrics log ends (once)."""
+        if not self.closed and self.metrics is not None:
+            self.metrics.finish(steps, self.agent)
+        self.closed = True
