@@ -1,14 +1,9 @@
 """The executor actor: plans, the call list, IAC and babbling (ch. 5–6) -> ``motor(t)``.
 
-It holds the :class:`~qlap_runtime.qlap.agent.Agent` whose learner is a follower: it keeps the
-DBN statistics that rel(r, s) needs from the ``qstate`` stream and applies the batch actors'
-deltas at step boundaries, but never learns DBNs or landmarks itself. Plan compilation
-(Algorithm 2 line 15) is the planner actor's: at each batch step the executor publishes its
-agent (``planreq``) and applies the planner's plan delta at t + L, right after the batch's
-deltas; Sarsa and Dyna stay here (docs/runtime.md, docs/decisions.md 56). It obeys the UI's
-commands through the runner contract shared with the terminal UI's local runner, and writes the
-metrics log, checkpoints, ``knowledge.json`` and the summary like the synchronous loop
-(:mod:`actors.executor_parts`).
+Its agent's learner is a follower (DBN statistics from ``qstate``, the batch actors' deltas at
+step boundaries). At each batch step it publishes its agent for the planner (``planreq``) and
+applies the plan delta at t + L after the batch's deltas; Sarsa and Dyna stay here
+(docs/decisions.md 56). Controls, display and files: :mod:`actors.executor_parts`.
 """
 
 from __future__ import annotations
@@ -25,11 +20,9 @@ from qlap_runtime.runtime.rules import qstate_rule
 
 from .checkpoint_parts import gather_final_parts, keep_on_stall
 from .convert import QStateCodec
-from .executor_parts import BatchLinks, Controls, Files, load_executor_agent
+from .executor_parts import BatchLinks, Controls, Files, end_marker, load_executor_agent
 
 NAME = "executor"
-END_MARKER_S = 5.0
-"""How long a hosted executor waits for the world's end marker to reach its controls."""
 
 
 class ExecutorActor(ActorBase):
@@ -40,8 +33,8 @@ class ExecutorActor(ActorBase):
     def __init__(self, session: Any, ctx: RunContext, *, hosted: bool = False) -> None:
         self.ctx, self.hosted, self.steps_done = ctx, hosted, 0
         self.actor = actor = Actor(session, ctx, NAME, obey=True)
-        agent, self.checkpoint = load_executor_agent(ctx, actor.resume)
-        self.agent = agent
+        self.agent, self.checkpoint = load_executor_agent(ctx, actor.resume)
+        agent = self.agent
         self.rejected: list[str] = list(actor.resume.state.get("rejected", []))
         self.codec = QStateCodec(agent.table)
         actor.input("qstate", window=1, rule=qstate_rule(self.codec.names))
@@ -78,9 +71,8 @@ class ExecutorActor(ActorBase):
             self.rejected.append(f"step {t}: {msg.rejected}")
             motor = Motor(t, dict(agent.motor))
         else:
-            # The learner's percept (not the message's): a landmark applied at this step
-            # renumbers its q in place, as in the synchronous loop. Waited for before
-            # observing (L > 0): a cancel (a stall) leaves the agent at a step boundary.
+            # The learner's percept: a landmark applied at t renumbers its q in place, as in
+            # the sync loop. Deltas waited for before observing (a stall: a step boundary).
             due = await self.deltas.due_now(t, ctx.realtime)
             plans = await self.links.plans.due(t) if ctx.params.batch_lag else None
             p = agent.learner.observe_percept(self.codec.percept(msg))
@@ -107,12 +99,8 @@ class ExecutorActor(ActorBase):
     async def finish(self, quit_at: int | None) -> dict[str, Any]:
         """After the last step (``quit_at``: the world's last step after a ``quit``): the
         final status and files; then stay until the actors behind are done."""
-        if quit_at is not None:
-            # The world's end marker is on its way to this actor's controls (a hosted
-            # executor ends right after the world published it): the status answers it.
-            with trio.move_on_after(END_MARKER_S):
-                while self.actor.controls.last_step is None:  # noqa: ASYNC110 - a callback
-                    await trio.sleep(0.001)
+        if quit_at is not None:                 # the status answers the world's end marker
+            await end_marker(self.actor)
         self.actor.slot.finished()
         self.controls.last(self.steps_done)
         self._end()
@@ -123,18 +111,15 @@ class ExecutorActor(ActorBase):
             **({} if quit_at is None else {"quit_at_step": quit_at}))
         self.files.final(self.steps_done if quit_at is not None else self.ctx.steps,
                          self.controls.runner.agent_changes, self.rejected)
-        # Outputs first (a failed world waits for the other actors' tokens, then reads
-        # them); then an actor behind may still ask for a lost batch context or request.
+        # Outputs first; then an actor behind may still ask for a lost context or request.
         await self.actor.linger(("contingency", "landmarks", "planner"))
         if self.ctx.placement == "distributed":  # no launcher: the executor places them
             await gather_final_parts(self.actor.session, self.ctx)
         return self.result
 
     def _end(self) -> None:
-        """The display and the metrics log end (once)."""
-        if not self.files.closed:
-            self.controls.display.close()
-            self.files.close(self.actor.resume.step + 1 + self.steps_done)
+        self.controls.close()                   # once each
+        self.files.close(self.actor.resume.step + 1 + self.steps_done)
 
     def close(self) -> None:
         self._end()

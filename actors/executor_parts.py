@@ -40,6 +40,9 @@ from .convert import batch_context, plan_request
 from .planner import PlanInbox
 from .resume import checkpoint_of
 
+END_MARKER_S = 5.0
+"""How long a hosted executor waits for the world's end marker to reach its controls."""
+
 
 def load_executor_agent(ctx: RunContext, resume: Resume) -> tuple[Agent, Path | None]:
     """The executor's agent (its learner a follower: statistics, no batches) and the resumed
@@ -112,6 +115,12 @@ class Controls:
         self.clock_name = "realtime" if ctx.realtime else "lockstep"
         self.commands = BoundaryCommands(actor.controls, self.runner, self.publish)
         self.side = trio.CancelScope()
+        self.closed = False
+
+    def close(self) -> None:
+        if not self.closed:
+            self.display.close()
+        self.closed = True
 
     def publish(self, force: bool) -> None:
         self.display.publish(self.agent, self.runner.clock, clock_name=self.clock_name,
@@ -177,3 +186,11 @@ class Files:
         if not self.closed and self.metrics is not None:
             self.metrics.finish(steps, self.agent)
         self.closed = True
+
+
+async def end_marker(actor: Actor) -> None:
+    """After a ``quit``: wait (a little) until the world's end marker reached the actor's
+    controls (a hosted executor ends right after the world published it)."""
+    with trio.move_on_after(END_MARKER_S):
+        while actor.controls.last_step is None:  # noqa: ASYNC110 - set by a callback
+            await trio.sleep(0.001)
