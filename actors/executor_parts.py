@@ -89,9 +89,12 @@ class BatchLinks:
             self.requests.put(t, plan_request(agent, t))
 
     def decided(self, agent: Agent, t: int) -> None:
-        """Before ``motor(t)``: the batch at t + 1 reads this state (§6.2.1)."""
+        """Before ``motor(t)``: the batch at t + 1 reads this state (§6.2.1); after the last
+        step the planner is told it is done."""
         if batch_kinds(self.ctx.params, t + 1) and t + 1 < self.ctx.end:
             self.contexts.put(t, batch_context(agent, t))
+        if t == self.ctx.end - 1 and t not in self.plans.asked:
+            self.requests.put(t, PlanRequest(t, last=True))
 
     def logs(self) -> dict[str, list]:
         """The replay logs a snapshot keeps."""

@@ -38,6 +38,14 @@ def compiled_steps(ctx: RunContext, after: int) -> list[int]:
     return [t for t in range(after + 1, ctx.end - lag) if batch_kinds(ctx.params, t)]
 
 
+def requested_steps(ctx: RunContext, after: int) -> list[int]:
+    """The steps after ``after`` with a ``planreq``: the compiled ones, and the last step
+    (the planner ends there; it stays alive until the end of the run, as every actor)."""
+    steps = compiled_steps(ctx, after)
+    last = ctx.end - 1
+    return steps + ([last] if last > after and last not in steps else [])
+
+
 class PlanInbox:
     """The executor's side: the steps at which it asks for a compilation (``asked``) and the
     plan deltas due at a step (waited for in lockstep; under the realtime clock those that
@@ -82,10 +90,12 @@ class PlannerActor(ActorBase):
         self.result: dict[str, Any] | None = None
 
     async def batch(self, t: int) -> bool:
-        """Answer ``planreq(t)``; False when the run ended before step t."""
+        """Answer ``planreq(t)``; False when the run ended (before t, or at the last step)."""
         try:
             req = await self.requests.get(t)
         except RunEnded:
+            return False
+        if req.last:
             return False
         if req.rejected:                        # no batch at t: nothing to compile
             self.deltas.book.skipped.add(t)
@@ -121,7 +131,7 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
     """The planner actor as a task of its own."""
     with PlannerActor(session, ctx) as me:
         await me.actor.start()
-        for t in compiled_steps(ctx, me.actor.resume.step):
+        for t in requested_steps(ctx, me.actor.resume.step):
             if not await me.batch(t):
                 break
         return await me.finish()

@@ -159,6 +159,9 @@ class PlanRequest:
     """The agent as a checkpoint (``save_agent``): file name -> base64 of its bytes."""
     rejected: bool = False
     """``qstate(t)`` was rejected: no batch at t, and no compilation (``files`` empty)."""
+    last: bool = False
+    """The executor's last step t (not a batch step it asks about; ``files`` empty): the
+    planner ends."""
     version: int = 1
     """Schema version of this message type."""
 
