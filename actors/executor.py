@@ -35,14 +35,13 @@ class ExecutorActor(ActorBase):
         self.actor = actor = Actor(session, ctx, NAME, obey=True)
         self.agent, self.checkpoint = load_executor_agent(ctx, actor.resume)
         agent = self.agent
-        self.rejected: list[str] = list(actor.resume.state.get("rejected", []))
         self.codec = QStateCodec(agent.table)
         actor.input("qstate", window=1, rule=qstate_rule(self.codec.names))
         self.deltas = actor.deltas(len(agent.table))
         self.links = BatchLinks(actor, ctx, self.deltas.book)
         self.motors = actor.output("motor")
         self.controls = Controls(session, ctx, agent, actor)
-        self.files = Files(ctx, agent, actor.resume.step + 1)
+        self.files = Files(ctx, agent, actor.resume)
         self.result: dict[str, Any] | None = None
 
     async def start(self) -> None:
@@ -68,7 +67,7 @@ class ExecutorActor(ActorBase):
         if msg.rejected:
             self.deltas.book.skipped.add(t)
             self.links.rejected(t)
-            self.rejected.append(f"step {t}: {msg.rejected}")
+            self.files.rejected.append(f"step {t}: {msg.rejected}")
             motor = Motor(t, dict(agent.motor))
         else:
             # The learner's percept: a landmark applied at t renumbers its q in place, as in
@@ -90,7 +89,7 @@ class ExecutorActor(ActorBase):
             self.controls.publish(False)
         self.files.after_step(t, p, self.controls.runner.agent_changes)
         if actor.snapshot_due(t):
-            actor.snapshot(t, lambda d: save_agent(agent, d), rejected=self.rejected,
+            actor.snapshot(t, lambda d: save_agent(agent, d), rejected=self.files.rejected,
                            **self.links.logs())
         if self.hosted:
             commands.at_boundary = True         # the world goes on: commands may apply
@@ -104,13 +103,10 @@ class ExecutorActor(ActorBase):
         self.actor.slot.finished()
         self.controls.last(self.steps_done)
         self._end()
-        self.result = self.actor.result(
-            wait_s=round(self.deltas.wait_s, 3), rejected_observations=len(self.rejected),
-            rejected_examples=self.rejected[:20], wall_s=self.files.wall(),
-            steps_done=self.steps_done,
-            **({} if quit_at is None else {"quit_at_step": quit_at}))
+        self.result = self.actor.result(wait_s=round(self.deltas.wait_s, 3),
+                                        **self.files.result(self.steps_done, quit_at))
         self.files.final(self.steps_done if quit_at is not None else self.ctx.steps,
-                         self.controls.runner.agent_changes, self.rejected)
+                         self.controls.runner.agent_changes)
         # Outputs first; then an actor behind may still ask for a lost context or request.
         await self.actor.linger(("contingency", "landmarks", "planner"))
         if self.ctx.placement == "distributed":  # no launcher: the executor places them

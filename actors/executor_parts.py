@@ -4,8 +4,8 @@ from, what it tells the batch actors and the planner, its controls and display, 
 - :func:`load_executor_agent`: a snapshot's agent, a resumed run's checkpoint's, or a fresh one;
   its learner a follower (docs/runtime.md).
 - :class:`BatchLinks`: ``batchctx`` for the batch actors (§6.2.1), ``planreq`` for the planner
-  and the plan deltas it answers (Algorithm 2 line 15, docs/decisions.md 56), with their replay
-  logs kept in the executor's snapshots.
+  and the plan deltas it answers (:class:`PlanInbox`; Algorithm 2 line 15, docs/decisions.md
+  56), with their replay logs kept in the executor's snapshots.
 - :class:`Controls`: the runner contract shared with the terminal UI's local runner
   (:mod:`qlap_runtime.runtime.runner`): commands at step boundaries and the display topics.
 - :class:`Files`: the metrics log, periodic checkpoints, and ``knowledge.json``, the final
@@ -30,14 +30,16 @@ from qlap_runtime.qlap.checkpoint import (
     save_step_checkpoint,
 )
 from qlap_runtime.qlap.perception import Percept
+from qlap_runtime.qlap.plan_delta import PlanDelta
 from qlap_runtime.runtime.actor import Actor, Resume
 from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.controls import RunControl
 from qlap_runtime.runtime.lockstep import DeltaBook, batch_kinds
+from qlap_runtime.runtime.rules import plan_delta_rule
 from qlap_runtime.runtime.runner import BoundaryCommands, Display, Runner
 
 from .convert import batch_context, plan_request
-from .planner import PlanInbox
+from .planner import compiled_steps
 from .resume import checkpoint_of
 
 END_MARKER_S = 5.0
@@ -56,6 +58,33 @@ def load_executor_agent(ctx: RunContext, resume: Resume) -> tuple[Agent, Path | 
     agent.learner.auto_batches = False
     agent.learner.follower = True
     return agent, checkpoint
+
+
+class PlanInbox:
+    """The executor's side: the steps at which it asks for a compilation (``asked``) and the
+    plan deltas due at a step (waited for in lockstep; under the realtime clock those that
+    have arrived). ``book``: the executor's delta book, whose skipped steps have no batch."""
+
+    def __init__(self, actor: Actor, ctx: RunContext, book: DeltaBook) -> None:
+        self.ctx, self.book = ctx, book
+        # A restarted executor still applies the deltas of batches before its snapshot.
+        first = max(ctx.start, actor.resume.step + 1 - ctx.params.batch_lag)
+        self.asked = set(compiled_steps(ctx, first - 1))
+        self.inbox = actor.input("delta/plans", window=ctx.replay_keep, first=first,
+                                 rule=plan_delta_rule(ctx.params, ctx.realtime))
+
+    async def due(self, t: int) -> list[PlanDelta]:
+        if self.ctx.realtime:
+            self.inbox.drain()
+            arrived = sorted(self.inbox.buf)
+            out = [self.inbox.buf[s].to_delta() for s in arrived]
+            for s in arrived:
+                self.inbox.drop(s)
+            return out
+        c = t - self.ctx.params.batch_lag
+        if c not in self.asked or c in self.book.skipped:
+            return []
+        return [(await self.inbox.get(c, at=t)).to_delta()]
 
 
 class BatchLinks:
@@ -148,10 +177,12 @@ class Controls:
 class Files:
     """The executor's outputs (nothing without ``ctx.out``)."""
 
-    def __init__(self, ctx: RunContext, agent: Agent, start: int) -> None:
+    def __init__(self, ctx: RunContext, agent: Agent, resume: Resume) -> None:
         self.ctx, self.agent, self.t_start = ctx, agent, time.perf_counter()
-        self.metrics = MetricsLog(Path(ctx.out) / METRICS_FILE, agent, start=start,
+        self.metrics = MetricsLog(Path(ctx.out) / METRICS_FILE, agent, start=resume.step + 1,
                                   every=ctx.metrics_every) if ctx.out is not None else None
+        self.rejected: list[str] = list(resume.state.get("rejected", []))
+        """The observations rejected (``step t: why``), a snapshot's ones first."""
         # The last periodic checkpoint: (agent step, agent commands applied by then, its path).
         self.last_saved: tuple[int, int, Path | None] = (-1, -1, None)
         self.closed = False
@@ -165,7 +196,13 @@ class Files:
             self.last_saved = (agent.step_count, changes, save_step_checkpoint(
                 agent, Path(ctx.out) / "checkpoints", t + 1, ctx.world, ctx.keep_checkpoints))
 
-    def final(self, steps: int, changes: int, rejected: list[str]) -> None:
+    def result(self, steps_done: int, quit_at: int | None) -> dict[str, Any]:
+        """The executor's part of its result."""
+        return {"rejected_observations": len(self.rejected),
+                "rejected_examples": self.rejected[:20], "wall_s": self.wall(),
+                "steps_done": steps_done, **({} if quit_at is None else {"quit_at_step": quit_at})}
+
+    def final(self, steps: int, changes: int) -> None:
         """``knowledge.json``, ``checkpoints/final`` and the executor's summary."""
         ctx, agent = self.ctx, self.agent
         if ctx.out is None:
@@ -178,7 +215,7 @@ class Files:
             else None
         save_final_checkpoint(agent, out / "checkpoints", ctx.world, same_as=same)
         summary = summary_of(agent, type("W", (), {"name": ctx.world})(), ctx.seed, steps,
-                             self.wall(), rejected)
+                             self.wall(), self.rejected)
         atomic_write_json(out / "actors" / "executor.json", summary)
 
     def wall(self) -> float:

@@ -18,13 +18,12 @@ import time
 from typing import Any
 
 from qlap_runtime.bus.schema import PlanDeltaMsg, encode
-from qlap_runtime.qlap.plan_delta import PlanDelta
 from qlap_runtime.qlap.variables import VariableTable
 from qlap_runtime.runtime.actor import Actor, ActorBase, to_thread
 from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.inbox import RunEnded
-from qlap_runtime.runtime.lockstep import DeltaBook, batch_kinds
-from qlap_runtime.runtime.rules import plan_delta_rule, planreq_rule
+from qlap_runtime.runtime.lockstep import batch_kinds
+from qlap_runtime.runtime.rules import planreq_rule
 
 from .convert import REQUEST_FILES, compile_request
 
@@ -44,33 +43,6 @@ def requested_steps(ctx: RunContext, after: int) -> list[int]:
     steps = compiled_steps(ctx, after)
     last = ctx.end - 1
     return steps + ([last] if last > after and last not in steps else [])
-
-
-class PlanInbox:
-    """The executor's side: the steps at which it asks for a compilation (``asked``) and the
-    plan deltas due at a step (waited for in lockstep; under the realtime clock those that
-    have arrived). ``book``: the executor's delta book, whose skipped steps have no batch."""
-
-    def __init__(self, actor: Actor, ctx: RunContext, book: DeltaBook) -> None:
-        self.ctx, self.book = ctx, book
-        # A restarted executor still applies the deltas of batches before its snapshot.
-        first = max(ctx.start, actor.resume.step + 1 - ctx.params.batch_lag)
-        self.asked = set(compiled_steps(ctx, first - 1))
-        self.inbox = actor.input("delta/plans", window=ctx.replay_keep, first=first,
-                                 rule=plan_delta_rule(ctx.params, ctx.realtime))
-
-    async def due(self, t: int) -> list[PlanDelta]:
-        if self.ctx.realtime:
-            self.inbox.drain()
-            arrived = sorted(self.inbox.buf)
-            out = [self.inbox.buf[s].to_delta() for s in arrived]
-            for s in arrived:
-                self.inbox.drop(s)
-            return out
-        c = t - self.ctx.params.batch_lag
-        if c not in self.asked or c in self.book.skipped:
-            return []
-        return [(await self.inbox.get(c, at=t)).to_delta()]
 
 
 class PlannerActor(ActorBase):
