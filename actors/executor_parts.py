@@ -38,7 +38,7 @@ from qlap_runtime.runtime.lockstep import DeltaBook, batch_kinds
 from qlap_runtime.runtime.rules import plan_delta_rule
 from qlap_runtime.runtime.runner import BoundaryCommands, Display, Runner
 
-from .convert import batch_context, plan_request
+from .convert import LOCAL, batch_context, plan_request
 from .planner import compiled_steps
 from .resume import checkpoint_of
 
@@ -115,7 +115,8 @@ class BatchLinks:
         """After observing ``qstate(t)``, before the deltas due at t: the state the batch at
         t copies, which the planner compiles."""
         if t in self.plans.asked:
-            self.requests.put(t, plan_request(agent, t))
+            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t)
+                              if self.ctx.placement == "embedded" else plan_request(agent, t))
 
     def decided(self, agent: Agent, t: int) -> None:
         """Before ``motor(t)``: the batch at t + 1 reads this state (§6.2.1); after the last

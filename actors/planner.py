@@ -75,7 +75,8 @@ class PlannerActor(ActorBase):
         due = await self.deltas.due(t + self.ctx.params.batch_lag)
         t0 = time.perf_counter()
         self.actor.slot.busy(1)
-        delta = await to_thread(compile_request, req, due, self.ctx.params.batch_lag)
+        delta = await to_thread(compile_request, req, due, self.ctx.params.batch_lag,
+                                self.ctx.run_id)
         self.actor.slot.busy(0)
         self.compile_s.append(time.perf_counter() - t0)
         self.out.put(t, PlanDeltaMsg.of(delta))

@@ -162,6 +162,9 @@ class PlanRequest:
     last: bool = False
     """The executor's last step t (not a batch step it asks about; ``files`` empty): the
     planner ends."""
+    local: bool = False
+    """The agent was handed over in this process (the embedded placement: a copy, no files;
+    ``actors.convert.LocalRequests``)."""
     version: int = 1
     """Schema version of this message type."""
 

@@ -255,15 +255,19 @@ class Agent:
             self._end_frames(cut)
         return value_maps
 
-    def planning_copy(self, learner: ModelLearner) -> Agent:
+    def planning_copy(self, learner: ModelLearner, deep: bool = False) -> Agent:
         """A private copy of the agent's plans and actions as they are now, on ``learner``
         (the batch's learner, :meth:`~.learner.ModelLearner.take_batch`), for
         :meth:`compile_plans`. A compilation replaces a plan's arrays rather than writing into
-        them, so the copies share them; the call list stays the executor's."""
+        them, so the copies share them, unless ``deep`` (a compilation while this agent goes
+        on, in another thread); the call list stays the executor's."""
         c = copy.copy(self)
         c.learner = learner
-        c.actions = copy.deepcopy(self.actions, {id(self.params): self.params})
-        c.plans = {pid: copy.copy(plan) for pid, plan in self.plans.items()}
+        memo = {id(self.params): self.params, id(self.table): self.table, id(self): c,
+                id(self.learner): learner}
+        c.actions = copy.deepcopy(self.actions, memo)
+        c.plans = copy.deepcopy(self.plans, memo) if deep else \
+            {pid: copy.copy(plan) for pid, plan in self.plans.items()}
         c.call_list = []
         c.counters = copy.deepcopy(self.counters)
         c.pending_plans = deque()

@@ -141,7 +141,7 @@ def planreq_rule(files: tuple[str, ...]) -> Rule:
     """``planreq``: the checkpoint files of an agent and nothing else (a rejected step: none)."""
 
     def check(msg: Any) -> str | None:
-        want = set() if msg.rejected or msg.last else set(files)
+        want = set() if msg.rejected or msg.last or msg.local else set(files)
         if set(msg.files) != want:
             return f"planreq({msg.step}): files {sorted(msg.files)} (expected {sorted(want)})"
         return None
