@@ -266,8 +266,8 @@ class Agent:
         memo = {id(self.params): self.params, id(self.table): self.table, id(self): c,
                 id(self.learner): learner}
         c.actions = copy.deepcopy(self.actions, memo)
-        c.plans = copy.deepcopy(self.plans, memo) if deep else \
-            {pid: copy.copy(plan) for pid, plan in self.plans.items()}
+        c.plans = {pid: plan.snapshot() if deep else copy.copy(plan)
+                   for pid, plan in self.plans.items()}
         c.call_list = []
         c.counters = copy.deepcopy(self.counters)
         c.pending_plans = deque()

@@ -9,6 +9,7 @@ extra context C_o.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -227,6 +228,17 @@ class Plan:
         self.model = self._model(rel_action, rel_model)
         if dyna:
             dyna_sweep(self.q, self.model, self.params)
+
+    def snapshot(self) -> Plan:
+        """A copy that stays as this plan is now while this one goes on learning: the arrays
+        written in place (Q by Sarsa and Dyna, the stored calls and the second-order counts by
+        :meth:`record_call`) are its own; everything else is replaced, never written, by the
+        plan's methods, so it is shared."""
+        c = copy.copy(self)
+        c.q, c.call_x, c.call_ok = self.q.copy(), self.call_x.copy(), self.call_ok.copy()
+        c.cpt_s, c.cpt_f = self.cpt_s.copy(), self.cpt_f.copy()
+        c.sarsa = None                           # its traces are the executor's
+        return c
 
     # -- second-order statistics (§5.4) ------------------------------------------------------
     def record_call(self, x: np.ndarray, success: bool, cell: int) -> None:
