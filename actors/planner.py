@@ -81,15 +81,17 @@ class PlannerActor(ActorBase):
         self.compile_s.append(time.perf_counter() - t0)
         self.out.put(t, PlanDeltaMsg.of(delta))
         self.actor.slot.done(t)
-        if self.ctx.snapshots is not None:
-            # Named after the step before the next batch (nothing happens in between): a
-            # restarted planner starts at that batch. It keeps its deltas that the executor,
-            # restarted from its oldest snapshot, may still need.
-            since = self.actor.oldest_snapshot(("executor",)) - self.ctx.params.batch_lag
-            nxt = t + self.ctx.params.dbn_period
-            self.actor.snapshot(nxt - 1, None, own=[[s, encode(m).decode()] for s, m
-                                                    in self.out.log.entries(since + 1)])
         return True
+
+    def mark(self, t: int) -> None:
+        """Before waiting for ``planreq(t)``: a snapshot named after step t − 1 (nothing
+        happens between two requests), so that a restarted planner starts at t. It keeps the
+        plan deltas that the executor, restarted from its oldest snapshot, may still need."""
+        if self.ctx.snapshots is None or t - 1 <= self.actor.resume.step:
+            return
+        since = self.actor.oldest_snapshot(("executor",)) - self.ctx.params.batch_lag
+        self.actor.snapshot(t - 1, None, own=[[s, encode(m).decode()]
+                                             for s, m in self.out.log.entries(since + 1)])
 
     async def finish(self) -> dict[str, Any]:
         """After the last batch: stay until the executor is done (it may ask again)."""
@@ -105,6 +107,7 @@ async def run(session: Any, ctx: RunContext) -> dict[str, Any]:
     with PlannerActor(session, ctx) as me:
         await me.actor.start()
         for t in requested_steps(ctx, me.actor.resume.step):
+            me.mark(t)
             if not await me.batch(t):
                 break
         return await me.finish()
