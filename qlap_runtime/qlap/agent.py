@@ -7,7 +7,9 @@ call list of Algorithms 6 and 7 (Appendix F), termination (§5.2.3, §5.5.2), Sa
 
 One step (:meth:`Agent.step`): the percept of step t is the world's sensed values plus the motor
 values currently applied (those commanded at t − 1); the learner observes it (and runs or
-applies batches on schedule); plans are converted after a batch is applied (line 15); then the
+applies batches on schedule); a batch is followed by a plan compilation (line 15) on a copy
+(:meth:`Agent.compile_plans`), whose plan delta is applied with the batch's deltas at t + L
+(:meth:`Agent.apply_plans`; the planner actor computes the same, docs/decisions.md 56); then the
 executor returns the motor command of step t.
 """
 
