@@ -91,12 +91,7 @@ class LocalRequests:
         self.lock = threading.Lock()
 
     def put(self, run_id: str, agent: Agent, step: int) -> PlanRequest:
-        learner = agent.learner.batch_copy()
-        # The batch copy shares the perception's history rings, which the executor goes on
-        # writing while the planner reads them: the planner's are its own.
-        per = learner.perception
-        per.hist_x, per.hist_q = per.hist_x.copy(), per.hist_q.copy()
-        copy = agent.planning_copy(learner, deep=True)
+        copy = agent.planning_copy(agent.learner.batch_copy(), deep=True)
         with self.lock:
             self.agents[(run_id, step)] = copy
         return PlanRequest(step, local=True)

@@ -395,11 +395,11 @@ class ModelLearner:
         del self.applied[:-50]
 
     def _clone_for_batch(self) -> ModelLearner:
-        memo: dict[int, Any] = {}
-        # The histories are only read by a batch: share them instead of copying.
-        for arr in (self.perception.hist_x, self.perception.hist_q):
-            memo[id(arr)] = arr
-        memo[id(self.pending_deltas)] = deque()
+        # The histories are copied too (a few MB): they are rings, and once full this learner,
+        # going on while a batch computes in another thread, writes over the oldest rows the
+        # batch still reads (an embedded core run of 30,000 steps parted from the synchronous
+        # loop after step 20,000, Params.event_history, when the batch actors took longer).
+        memo: dict[int, Any] = {id(self.pending_deltas): deque()}
         work, self._batch_work = self._batch_work, None     # never part of a copy
         try:
             return copy.deepcopy(self, memo)
