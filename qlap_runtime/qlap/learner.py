@@ -397,8 +397,8 @@ class ModelLearner:
     def _clone_for_batch(self) -> ModelLearner:
         # The histories are copied too (a few MB): they are rings, and once full this learner,
         # going on while a batch computes in another thread, writes over the oldest rows the
-        # batch still reads (an embedded core run of 30,000 steps parted from the synchronous
-        # loop after step 20,000, Params.event_history, when the batch actors took longer).
+        # batch still reads (embedded core runs of 30,000 steps parted from the synchronous
+        # loop in 3 of 6 trials, Params.event_history being 20,000 steps).
         memo: dict[int, Any] = {id(self.pending_deltas): deque()}
         work, self._batch_work = self._batch_work, None     # never part of a copy
         try:
