@@ -6,7 +6,8 @@
 | ``perception`` | quantity spaces | ``sense``, deltas | ``qstate(t)`` |
 | ``contingency`` | pair and DBN statistics | ``qstate``, deltas | ``delta/dbn`` |
 | ``landmarks`` | histories, DBN activations | ``qstate``, deltas | ``delta/landmarks`` |
-| ``executor`` | plans, call list, IAC | ``qstate``, deltas | ``motor(t)``, display topics |
+| ``planner`` | nothing between batches | ``planreq``, deltas | ``delta/plans`` |
+| ``executor`` | plans, call list, IAC | ``qstate``, deltas | ``motor(t)``, ``planreq``, display |
 
 Each is a trio coroutine ``run(session, ctx)``; the same code runs in every placement.
 """

@@ -1,15 +1,29 @@
-"""Bus messages ↔ the algorithm's objects: ``qstate`` ↔ :class:`Percept`, and the executor's
-state a batch reads (``batchctx``, §6.2.1)."""
+"""Bus messages ↔ the algorithm's objects: ``qstate`` ↔ :class:`Percept`, the executor's
+state a batch reads (``batchctx``, §6.2.1) and the agent a plan compilation reads
+(``planreq``, Algorithm 2 line 15)."""
 
 from __future__ import annotations
 
+import base64
+import tempfile
+import threading
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from qlap_runtime.bus.schema import BatchContext, QState
+from qlap_runtime.bus.schema import BatchContext, PlanRequest, QState
+from qlap_runtime.qlap.agent import Agent
+from qlap_runtime.qlap.checkpoint import load_agent, save_agent
+from qlap_runtime.qlap.delta import Delta
 from qlap_runtime.qlap.perception import Percept
+from qlap_runtime.qlap.plan_delta import PlanDelta
 from qlap_runtime.qlap.variables import Event, VariableTable
+
+REQUEST_FILES = ("agent.json", "agent.npz", "learner.json", "learner.npz")
+"""The checkpoint files a ``planreq`` carries (``save_agent``'s, docs/checkpoint.md)."""
+SCRATCH = "/dev/shm" if Path("/dev/shm").is_dir() else None
+"""Where a request's files pass through (memory where the system has it)."""
 
 
 class QStateCodec:
@@ -64,3 +78,53 @@ def apply_batch_context(learner: Any, msg: BatchContext) -> None:
     plans = set(msg.plan_dbns)
     for dbn_id, dbn in learner.dbns.items():
         dbn.is_plan = dbn_id in plans
+
+
+class LocalRequests:
+    """The embedded placement's ``planreq``: the executor and the planner share a process, so
+    the request hands over a private copy of the agent (:meth:`Agent.planning_copy`, deep: the
+    executor goes on while the planner compiles) instead of its files; the message only says
+    so (``local``), and stays in the replay log like any other."""
+
+    def __init__(self) -> None:
+        self.agents: dict[tuple[str, int], Agent] = {}
+        self.lock = threading.Lock()
+
+    def put(self, run_id: str, agent: Agent, step: int) -> PlanRequest:
+        copy = agent.planning_copy(agent.learner.batch_copy(), deep=True)
+        with self.lock:
+            self.agents[(run_id, step)] = copy
+        return PlanRequest(step, local=True)
+
+    def take(self, run_id: str, step: int) -> Agent:
+        with self.lock:
+            return self.agents.pop((run_id, step))
+
+
+LOCAL = LocalRequests()
+
+
+def plan_request(agent: Agent, step: int) -> PlanRequest:
+    """``planreq(step)``: the executor's agent as a checkpoint (no pickle), for the planner."""
+    with tempfile.TemporaryDirectory(prefix="qlap-planreq-", dir=SCRATCH) as tmp:
+        save_agent(agent, tmp, fast=True)
+        files = {name: base64.b64encode((Path(tmp) / name).read_bytes()).decode()
+                 for name in REQUEST_FILES}
+    return PlanRequest(step, files)
+
+
+def compile_request(msg: PlanRequest, deltas: list[Delta], lag: int,
+                    run_id: str = "") -> PlanDelta:
+    """The planner's work: the request's agent, the batch's ``deltas`` applied to its learner,
+    compiled (:meth:`~qlap_runtime.qlap.agent.Agent.compile_plans`)."""
+    if msg.local:
+        agent = LOCAL.take(run_id, msg.step)
+    else:
+        with tempfile.TemporaryDirectory(prefix="qlap-planreq-", dir=SCRATCH) as tmp:
+            for name in REQUEST_FILES:
+                (Path(tmp) / name).write_bytes(base64.b64decode(msg.files[name],
+                                                                validate=True))
+            agent = load_agent(tmp)
+    for d in deltas:
+        agent.learner.apply_delta(d)
+    return agent.compile_plans(msg.step, msg.step + lag)

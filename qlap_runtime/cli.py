@@ -210,12 +210,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     actor = sub.add_parser(
         "actor", help="run one actor of a distributed run (connects to a router)",
-        description="Run one actor (world, perception, contingency, landmarks, executor) on "
-                    "this machine, connected to a Zenoh router (qlap router). Start every "
+        description="Run one actor (world, perception, contingency, landmarks, planner, executor) "
+                    "on this machine, connected to a Zenoh router (qlap router). Start every "
                     "actor of the run with the same --run, --world, --steps, --seed and "
                     "learning options; the world starts stepping when the others are alive.")
     actor.add_argument("name", choices=("world", "perception", "contingency", "landmarks",
-                                        "executor"), help="the actor to run here")
+                                        "planner", "executor"), help="the actor to run here")
     from .bus.cli import connection_args
 
     connection_args(actor)

@@ -40,7 +40,7 @@ from .schema import TOPIC_TYPES, Message, MessageError, Rejected, decode, encode
 log = logging.getLogger("qlap.bus")
 
 RELIABLE_TOPICS = frozenset({"sense", "qstate", "motor", "delta/dbn", "delta/landmarks",
-                             "delta/plans", "control", "batchctx"})
+                             "delta/plans", "control", "batchctx", "planreq"})
 """Topics that must not lose data: published with ``CongestionControl.BLOCK``."""
 DISPLAY_TOPICS = frozenset({"calllist", "iac", "stats", "knowledge", "world", "status"})
 """Display topics: published with ``CongestionControl.DROP`` (a slow viewer loses frames, the
@@ -49,7 +49,7 @@ agent never waits for it)."""
 assert RELIABLE_TOPICS | DISPLAY_TOPICS == set(keys.TOPICS)
 
 LOCKSTEP_TOPICS = frozenset({"sense", "qstate", "motor", "delta/dbn", "delta/landmarks",
-                             "batchctx"})
+                             "batchctx", "planreq", "delta/plans"})
 """Topics on the lockstep chain, published ``express`` (sent at once, not batched)."""
 
 T = TypeVar("T")

@@ -22,7 +22,8 @@ from typing import Any
 
 log = logging.getLogger("qlap.bus")
 
-FAULT_TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "batchctx")
+FAULT_TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "batchctx",
+                "planreq", "delta/plans")
 """The topics a plan may name: the lockstep chain and the learners' inputs (each kept in a
 replay log by its writer). Not ``control``: its commands and the world's end marker after a
 ``quit`` have no replay log, so a lost one cannot be asked for again (a consumer left waiting

@@ -10,7 +10,9 @@ topic                     writer        message (:mod:`qlap_runtime.bus.schema`)
 ``motor``                 executor      :class:`~.schema.Motor`
 ``delta/dbn``             contingency   :class:`~.schema.DeltaMsg` (kind ``dbn``)
 ``delta/landmarks``       landmarks     :class:`~.schema.DeltaMsg` (kind ``landmarks``)
-``delta/plans``           planner       :class:`~.schema.DeltaMsg` (kind ``plans``)
+``delta/plans``           planner       :class:`~.schema.PlanDeltaMsg`
+``planreq``               executor      :class:`~.schema.PlanRequest`
+``batchctx``              executor      :class:`~.schema.BatchContext`
 ``calllist``              executor      :class:`~.schema.CallList`
 ``iac``                   executor      :class:`~.schema.IACChoice`
 ``stats``                 any actor     :class:`~.schema.Stats`
@@ -33,13 +35,15 @@ import time
 ROOT = "qlap"
 
 TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "delta/plans",
-          "calllist", "iac", "stats", "control", "knowledge", "world", "status", "batchctx")
+          "calllist", "iac", "stats", "control", "knowledge", "world", "status", "batchctx",
+          "planreq")
 """Every data topic under ``qlap/<run-id>/``."""
 
 ALIVE = "alive"
 
 REPLAY = "replay"
-REPLAY_TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "batchctx")
+REPLAY_TOPICS = ("sense", "qstate", "motor", "delta/dbn", "delta/landmarks", "batchctx",
+                 "planreq", "delta/plans")
 """The lockstep topics whose writers keep a replay log (docs/runtime.md, Faults)."""
 
 _FORBIDDEN = set("*$/#?") | {" ", "\t", "\n", "\r"}
@@ -133,7 +137,7 @@ WRITERS: dict[str, tuple[str, ...]] = {
     "contingency": ("delta/dbn",),
     "landmarks": ("delta/landmarks",),
     "planner": ("delta/plans",),
-    "executor": ("motor", "calllist", "iac", "status", "knowledge", "batchctx"),
+    "executor": ("motor", "calllist", "iac", "status", "knowledge", "batchctx", "planreq"),
     "tui": ("control",),
     "supervisor": ("control",),
     "recorder": (),

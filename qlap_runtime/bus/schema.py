@@ -31,6 +31,7 @@ from typing import Any, Literal
 import orjson
 
 from ..qlap.delta import Delta
+from ..qlap.plan_delta import PlanDelta
 from . import keys
 
 JSON = Any
@@ -119,16 +120,16 @@ class BatchContext:
     """Schema version of this message type."""
 
 
-DeltaKind = Literal["dbn", "landmarks", "plans"]
+DeltaKind = Literal["dbn", "landmarks"]
 
 
 @dataclass(frozen=True)
 class DeltaMsg:
-    """A knowledge delta (docs/architecture.md §1) on ``delta/dbn``, ``delta/landmarks`` or
-    ``delta/plans``; the kind must match the topic."""
+    """A knowledge delta (docs/architecture.md §1) on ``delta/dbn`` or ``delta/landmarks``;
+    the kind must match the topic."""
 
     kind: DeltaKind
-    """Which knowledge changed: ``dbn``, ``landmarks`` or ``plans``."""
+    """Which knowledge changed: ``dbn`` or ``landmarks``."""
     delta: dict[str, JSON]
     """The payload of :meth:`qlap_runtime.qlap.delta.Delta.to_json` (version, computed_at,
     apply_at, ops); decoding checks that :meth:`Delta.from_json` accepts it."""
@@ -143,6 +144,52 @@ class DeltaMsg:
     def to_delta(self) -> Delta:
         """The :class:`Delta` carried (its operations typed, each field checked)."""
         return Delta.from_json(self.delta)
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """What a plan compilation reads (topic ``planreq``; Algorithm 2 line 15, §5.2–5.4): the
+    executor's agent at batch step t, after observing ``qstate(t)`` and before applying the
+    deltas due at t — the state the batch at t copies — published by the executor for every
+    batch step. The planner applies the batch's deltas to it and compiles."""
+
+    step: int
+    """The batch step t."""
+    files: dict[str, str] = field(default_factory=dict)
+    """The agent as a checkpoint (``save_agent``): file name -> base64 of its bytes."""
+    rejected: bool = False
+    """``qstate(t)`` was rejected: no batch at t, and no compilation (``files`` empty)."""
+    last: bool = False
+    """The executor's last step t (not a batch step it asks about; ``files`` empty): the
+    planner ends."""
+    local: bool = False
+    """The agent was handed over in this process (the embedded placement: a copy, no files;
+    ``actors.convert.LocalRequests``)."""
+    version: int = 1
+    """Schema version of this message type."""
+
+
+@dataclass(frozen=True)
+class PlanDeltaMsg:
+    """A plan compilation's result (topic ``delta/plans``): the payload of
+    :meth:`qlap_runtime.qlap.plan_delta.PlanDelta.to_json`, applied by the executor at
+    ``apply_at`` right after the batch's deltas; decoding checks every operation."""
+
+    step: int
+    """The batch step t whose request it answers (its ``computed_at``)."""
+    delta: dict[str, JSON]
+    """computed_at, apply_at and the list of operations."""
+    kind: Literal["plans"] = "plans"
+    """Always ``plans`` (a delta inbox of the batches' kinds ignores it)."""
+    version: int = 1
+    """Schema version of this message type."""
+
+    @classmethod
+    def of(cls, delta: PlanDelta) -> PlanDeltaMsg:
+        return cls(delta.computed_at, delta.to_json())
+
+    def to_delta(self) -> PlanDelta:
+        return PlanDelta.from_json(self.delta)
 
 
 @dataclass(frozen=True)
@@ -419,18 +466,19 @@ class AgentStatus:
 
 
 Message = (Sense | QState | Motor | DeltaMsg | CallList | IACChoice | Stats | Control
-           | Knowledge | WorldView | AgentStatus)
+           | Knowledge | WorldView | AgentStatus | BatchContext | PlanRequest | PlanDeltaMsg)
 
 TOPIC_TYPES: dict[str, type] = {
     "sense": Sense, "qstate": QState, "motor": Motor, "delta/dbn": DeltaMsg,
-    "delta/landmarks": DeltaMsg, "delta/plans": DeltaMsg, "calllist": CallList,
+    "delta/landmarks": DeltaMsg, "delta/plans": PlanDeltaMsg, "calllist": CallList,
     "iac": IACChoice, "stats": Stats, "control": Control,
     "knowledge": Knowledge, "world": WorldView, "status": AgentStatus,
-    "batchctx": BatchContext}
+    "batchctx": BatchContext, "planreq": PlanRequest}
 """The message type each topic carries."""
 
 MESSAGE_TYPES: tuple[type, ...] = (Sense, QState, Motor, DeltaMsg, CallList, IACChoice, Stats,
-                                   Control, Knowledge, WorldView, AgentStatus, BatchContext)
+                                   Control, Knowledge, WorldView, AgentStatus, BatchContext,
+                                   PlanRequest, PlanDeltaMsg)
 
 SUPPORTED_VERSIONS: dict[type, frozenset[int]] = {t: frozenset({1}) for t in MESSAGE_TYPES}
 """Versions :func:`decode` accepts, per type."""
@@ -593,6 +641,13 @@ def _build(cls: type, obj: Any) -> Any:
 
 
 def _check_rules(msg: Any, topic: str) -> None:
+    if isinstance(msg, PlanDeltaMsg):
+        try:
+            d = PlanDelta.from_json(msg.delta)
+        except (KeyError, TypeError, ValueError) as e:
+            raise _Invalid(f"delta: {type(e).__name__}: {e}") from None
+        if d.computed_at != msg.step:
+            raise _Invalid(f"delta computed at {d.computed_at} on step {msg.step}")
     if isinstance(msg, DeltaMsg):
         expected = topic.removeprefix("delta/")
         if msg.kind != expected:

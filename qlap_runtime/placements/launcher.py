@@ -29,7 +29,7 @@ from ..qlap.checkpoint import atomic_write_json
 from ..runtime.outputs import check_out
 from ..runtime.supervisor import Supervisor
 
-ACTORS = ("perception", "contingency", "landmarks", "executor", "world")
+ACTORS = ("perception", "contingency", "landmarks", "planner", "executor", "world")
 """Every actor of a run; the world starts last (it waits for the others)."""
 CHAIN = ("world", "perception", "executor")
 """The step chain: in the embedded placement one task runs their steps in turn (the world's
@@ -37,7 +37,7 @@ hosts the others', ``actors.world.run``), so a step needs no wake-up between the
 
 
 async def _run_actor(name: str, session: Any, ctx: Any, ready: trio.Event | None = None) -> dict:
-    from actors import executor, learning, perception, world
+    from actors import executor, learning, perception, planner, world
 
     if name == "world":
         return await world.run(session, ctx, ready)
@@ -58,6 +58,8 @@ async def _run_actor(name: str, session: Any, ctx: Any, ready: trio.Event | None
         return await learning.run(session, ctx, name)
     if name == "executor":
         return await executor.run(session, ctx)
+    if name == "planner":
+        return await planner.run(session, ctx)
     raise ValueError(f"unknown actor {name!r}; known: {', '.join(ACTORS)}")
 
 

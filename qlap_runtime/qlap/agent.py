@@ -7,12 +7,15 @@ call list of Algorithms 6 and 7 (Appendix F), termination (§5.2.3, §5.5.2), Sa
 
 One step (:meth:`Agent.step`): the percept of step t is the world's sensed values plus the motor
 values currently applied (those commanded at t − 1); the learner observes it (and runs or
-applies batches on schedule); plans are converted after a batch is applied (line 15); then the
+applies batches on schedule); a batch is followed by a plan compilation (line 15) on a copy
+(:meth:`Agent.compile_plans`), whose plan delta is applied with the batch's deltas at t + L
+(:meth:`Agent.apply_plans`; the planner actor computes the same, docs/decisions.md 56); then the
 executor returns the motor command of step t.
 """
 
 from __future__ import annotations
 
+import copy
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -55,6 +58,16 @@ from .mdp import (
 )
 from .params import Params
 from .perception import Percept
+from .plan_delta import (
+    AddPlan,
+    DropContext,
+    PlanContexts,
+    PlanDelta,
+    PlanOp,
+    Rebuild,
+    RemovePlan,
+    SkipPlan,
+)
 from .planner import (
     Plan,
     PlanGroups,
@@ -166,6 +179,10 @@ class Agent:
         self.step_count = -1
         self._seen_applied = 0
         self._last_percept: Percept | None = None
+        self.pending_plans: deque[PlanDelta] = deque()
+        """Plan deltas computed at a batch step t, applied at t + L (:meth:`compile_plans`)."""
+        self._compiling: list[PlanOp] | None = None
+        """While :meth:`compile_plans` runs: the operations recorded so far."""
 
     # ------------------------------------------------------------------------------------------
     # Algorithm 2, one step
@@ -182,6 +199,12 @@ class Agent:
         full.update(self.motor)
         if self.learning:
             p = self.learner.observe(t, full, discontinuity=discontinuity)
+            work = self.learner.take_batch()
+            if work is not None:
+                # Line 15 on the batch's snapshot, applied at t + L with the batch's deltas
+                # (what the planner actor computes, docs/decisions.md 56).
+                self.pending_plans.append(self.planning_copy(work).compile_plans(
+                    t, t + self.params.batch_lag))
         else:
             x = self.learner.perception.vector(full)
             p = self.learner.perception.perceive(t, x, copy=False, discontinuity=discontinuity,
@@ -189,15 +212,25 @@ class Agent:
         return self.decide(p)
 
     def decide(self, p: Percept) -> dict[str, float]:
-        """After the learner observed ``p`` (and applied the deltas due): plans follow the new
-        knowledge (Algorithm 2 line 15), then the executor chooses the motor command."""
+        """After the learner observed ``p`` (and applied the deltas due): the call list follows
+        new landmarks, the plan deltas due are applied (Algorithm 2 line 15), then the executor
+        chooses the motor command."""
         self.step_count = p.step
         self._last_percept = p
         if p.discontinuity and self.call_list:
             self._interrupt()                   # the world moved, not the agent's actions
+        value_maps: dict[int, np.ndarray] | None = None
         if self.learner.applied_count != self._seen_applied:
             self._seen_applied = self.learner.applied_count
-            self._after_batch(p)
+            value_maps = self._follow_landmarks()
+        if self.pending_plans and self.pending_plans[0].apply_at <= p.step:
+            while self.pending_plans and self.pending_plans[0].apply_at <= p.step:
+                self.apply_plans(self.pending_plans.popleft(), p, value_maps or {})
+                value_maps = {}
+        elif value_maps is not None:
+            # Knowledge without its plan delta (the realtime clock applies what has arrived):
+            # the plans follow it here, so that no plan outlives its DBN or its space.
+            self._follow_knowledge(p, value_maps)
         self._act(p)
         return dict(self.motor)
 
@@ -207,11 +240,10 @@ class Agent:
     def _sizes(self) -> list[int]:
         return list(self.learner.perception.events.sizes)
 
-    def _after_batch(self, p: Percept) -> None:
-        """Plans follow a batch's knowledge (§5.2–5.4, §6.2); the call list keeps running
-        unless a plan in it was removed or an action in it lost its meaning (docs/decisions.md).
-        """
-        t = p.step
+    def _follow_landmarks(self) -> dict[int, np.ndarray]:
+        """New landmarks renumbered qualitative values (§4.4): the call list, the actions and
+        the goal follow them. Returns the value maps (new value -> old) of the split
+        variables, which the plans' rebuilds read."""
         splits, self.learner.splits = self.learner.splits, []
         sizes = self._sizes()
         value_maps = compose_split_maps(splits, sizes) if splits else {}
@@ -223,36 +255,129 @@ class Agent:
         self.actions.sync(sizes)
         if cut is not None:
             self._end_frames(cut)
-        # Plans whose DBN disappeared are removed; the others follow their DBN's structure.
+        return value_maps
+
+    def planning_copy(self, learner: ModelLearner, deep: bool = False) -> Agent:
+        """A private copy of the agent's plans and actions as they are now, on ``learner``
+        (the batch's learner, :meth:`~.learner.ModelLearner.take_batch`), for
+        :meth:`compile_plans`. A compilation replaces a plan's arrays rather than writing into
+        them, so the copies share them, unless ``deep`` (a compilation while this agent goes
+        on, in another thread); the call list stays the executor's."""
+        c = copy.copy(self)
+        c.learner = learner
+        memo = {id(self.params): self.params, id(self.table): self.table, id(self): c,
+                id(self.learner): learner}
+        c.actions = copy.deepcopy(self.actions, memo)
+        c.plans = {pid: plan.snapshot() if deep else copy.copy(plan)
+                   for pid, plan in self.plans.items()}
+        c.call_list = []
+        c.counters = copy.deepcopy(self.counters)
+        c.pending_plans = deque()
+        return c
+
+    def compile_plans(self, t: int, apply_at: int) -> PlanDelta:
+        """Plans follow a batch's knowledge (Algorithm 2 line 15, §5.2–5.4, §6.2), computed on
+        a private copy (:meth:`planning_copy`, or the planner actor's agent) whose learner holds
+        the batch at ``t`` with its deltas applied: removals (§6.2.2), second-order contexts
+        (§5.4), DBNs converted to plans, and every plan's MDP rebuilt with value iteration for
+        what has no learned values. Returns what it did, for :meth:`apply_plans` at
+        ``apply_at``."""
+        value_maps = self._follow_landmarks()
+        self._compiling = ops = []
+        try:
+            # Plans whose DBN disappeared are removed; the others follow their DBN's structure.
+            for pid in sorted(self.plans):
+                plan = self.plans[pid]
+                if self.learner.dbns.get(plan.dbn_id) is None \
+                        or plan.stats_removed(self.params):
+                    self._remove_plan(pid)
+            ops.append(PlanContexts(self._update_plan_contexts()))
+            self._convert_dbns_to_plans(t, apply_at)
+            for pid in sorted(self.plans):
+                plan = self.plans[pid]
+                try:
+                    self._rebuild(plan, value_maps=value_maps)
+                except PlanTooLarge:
+                    # Outgrew Params.max_plan_entries: first give up the variables of C_o
+                    # (§5.4.2, the plan keeps its DBN's own space), and only if that is still
+                    # too large remove the plan (docs/decisions.md 23).
+                    if not plan.context_o:
+                        self._remove_plan(pid)
+                        continue
+                    ops.append(DropContext(pid))
+                    self._drop_context(plan)
+                    try:
+                        self._rebuild(plan, value_maps=value_maps)
+                    except PlanTooLarge:
+                        self._remove_plan(pid)
+                        continue
+                ops.append(Rebuild(pid, plan.last_planned))
+        finally:
+            self._compiling = None
+        return PlanDelta(t, apply_at, tuple(ops))
+
+    def apply_plans(self, delta: PlanDelta, p: Percept,
+                    value_maps: Mapping[int, np.ndarray]) -> None:
+        """Apply a compilation's operations (:meth:`compile_plans`) at a step boundary, after
+        the batch's deltas and :meth:`_follow_landmarks`: its decisions and values of value
+        iteration, on the executor's own statistics and Q-values (learned since the batch by
+        Sarsa and Dyna, carried over by every rebuild). The call list keeps running unless a
+        plan in it was removed or an action in it lost its meaning (docs/decisions.md)."""
+        quantize = self.learner.perception.quantize_columns
+        for op in delta.ops:
+            match op:
+                case RemovePlan(plan_id=pid):
+                    if pid in self.plans:
+                        self._remove_plan(pid)
+                case PlanContexts(changes=changes):
+                    for pid, context_o in changes:
+                        if pid in self.plans:
+                            self.plans[pid].context_o = context_o
+                    sizes = self._sizes()
+                    signature = self.learner.perception.landmark_signature
+                    for pid in sorted(self.plans):
+                        plan = self.plans[pid]
+                        plan.recount(quantize, sizes, signature(sorted(plan.context_o)))
+                        plan.refresh_reliable()
+                case AddPlan(plan_id=pid, dbn_id=dbn_id, q=q):
+                    dbn = self.learner.dbns.get(dbn_id)
+                    if dbn is not None:
+                        self._add_plan(dbn, delta.apply_at, plan_id=pid, planned=q)
+                case SkipPlan():
+                    self._count_too_large()
+                case DropContext(plan_id=pid):
+                    if pid in self.plans:
+                        self._drop_context(self.plans[pid])
+                case Rebuild(plan_id=pid, q=q):
+                    plan = self.plans.get(pid)
+                    if plan is not None:
+                        old_space, old_actions = plan.space, plan.actions
+                        if self._rebuild(plan, value_maps=value_maps, planned=q) \
+                                and old_space is not None:
+                            self._follow_structure(plan, old_space, old_actions, value_maps, p)
+        self._update_self()
+
+    def _follow_knowledge(self, p: Percept, value_maps: Mapping[int, np.ndarray]) -> None:
+        """Knowledge changed without a compilation: plans whose DBN is gone are removed, the
+        others rebuilt (value iteration here), as a compilation would (realtime clock)."""
         for pid in sorted(self.plans):
             plan = self.plans[pid]
-            dbn = self.learner.dbns.get(plan.dbn_id)
-            if dbn is None or plan.stats_removed(self.params):
+            if self.learner.dbns.get(plan.dbn_id) is None:
                 self._remove_plan(pid)
-        self._update_plan_contexts()
-        self._convert_dbns_to_plans(t)
-        for pid in sorted(self.plans):
-            plan = self.plans[pid]
+                continue
             old_space, old_actions = plan.space, plan.actions
             try:
                 changed = self._rebuild(plan, value_maps=value_maps)
             except PlanTooLarge:
-                # Outgrew Params.max_plan_entries: first give up the variables of C_o (§5.4.2,
-                # the plan keeps its DBN's own space), and only if that is still too large
-                # remove the plan (docs/decisions.md 23).
-                if not plan.context_o:
-                    self._remove_plan(pid)
-                    continue
-                plan.context_o = ()
-                plan.recount(self.learner.perception.quantize_columns, self._sizes())
-                try:
-                    changed = self._rebuild(plan, value_maps=value_maps)
-                except PlanTooLarge:
-                    self._remove_plan(pid)
-                    continue
+                self._remove_plan(pid)
+                continue
             if changed and old_space is not None:
                 self._follow_structure(plan, old_space, old_actions, value_maps, p)
         self._update_self()
+
+    def _drop_context(self, plan: Plan) -> None:
+        plan.context_o = ()
+        plan.recount(self.learner.perception.quantize_columns, self._sizes())
 
     def _renumber_frames(self, splits: list[tuple[int, int]], sizes: list[int]) -> int | None:
         """Landmarks renumbered values (§4.4): shift the values the frames hold. A motor frame
@@ -352,13 +477,14 @@ class Agent:
         return motor_reachable(self.learner.perception.spaces[var], value, v.low, v.high)
 
     def _rebuild(self, plan: Plan, fresh: bool = False,
-                 value_maps: dict[int, np.ndarray] | None = None) -> bool:
+                 value_maps: Mapping[int, np.ndarray] | None = None,
+                 planned: np.ndarray | None = None) -> bool:
         self._plans_changed()
         dbn = self.learner.dbns[plan.dbn_id]
         sizes = self._sizes()
         return plan.build(dbn, sizes, self._rel_action,
                           dbn_rel_state(dbn, sizes, self.params.prior), fresh=fresh,
-                          value_maps=value_maps, usable=self._usable)
+                          value_maps=value_maps, usable=self._usable, planned=planned)
 
     def _refresh(self, plan: Plan) -> None:
         dbn = self.learner.dbns.get(plan.dbn_id)
@@ -368,12 +494,13 @@ class Agent:
         plan.refresh(self._rel_action, dbn_rel_state(dbn, sizes, self.params.prior),
                      dyna=not self.params.ablations.no_dyna)
 
-    def _update_plan_contexts(self) -> None:
+    def _update_plan_contexts(self) -> tuple[tuple[int, tuple[int, ...]], ...]:
         """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4).
 
         The plans' searches (Algorithm 3, :meth:`Plan.update_context`) are independent: they
         are made together (:func:`~.context.update_contexts_many`, the same answers), then
-        each plan follows its answer in order of id."""
+        each plan follows its answer in order of id. Returns (plan id, new C_o) of each plan
+        whose C_o changed."""
         sizes = self._sizes()
         perception = self.learner.perception
         quantize = perception.quantize_columns
@@ -408,6 +535,7 @@ class Agent:
                 row += len(X)
             answers = [None if a is None else tuple(cols[i] for i in a) for a in
                        update_contexts_many(problems, [sizes[v] for v in cols], self.params)]
+        changes = []
         for plan, _, version, j in todo:
             dbn = self.learner.dbns[plan.dbn_id]
             before = plan.context_o
@@ -417,6 +545,9 @@ class Agent:
                 plan.context_o = before                 # too large a state space: keep C_o
                 plan.recount(quantize, sizes, version)
             plan.refresh_reliable()
+            if plan.context_o != before:
+                changes.append((plan.id, plan.context_o))
+        return tuple(changes)
 
     def _plan_edges(self) -> set[tuple[ActionKey, ActionKey]]:
         edges = set()
@@ -448,8 +579,9 @@ class Agent:
                 return True
         return False
 
-    def _convert_dbns_to_plans(self, t: int) -> None:
-        """Line 15 of Algorithm 2 with the restrictions of §6.2.1–6.2.2 and §6.3.
+    def _convert_dbns_to_plans(self, t: int, created: int | None = None) -> None:
+        """Line 15 of Algorithm 2 with the restrictions of §6.2.1–6.2.2 and §6.3, at step
+        ``t``; a new plan exists from step ``created`` (default ``t``).
 
         The DBNs that qualify compete for the plan slots best first: highest overall
         reliability rel(r) (Table 5.1; how often it works from the states the agent is in, as
@@ -505,7 +637,8 @@ class Agent:
                     continue
                 if slots.free <= 0 and slots.replaceable is not None:
                     self._remove_plan(change_plans[slots.replaceable].id)
-            if self._add_plan(dbn, t) is not None and edge[1] not in adj.get(edge[0], ()):
+            if self._add_plan(dbn, t if created is None else created) is not None \
+                    and edge[1] not in adj.get(edge[0], ()):
                 adj.setdefault(edge[0], []).append(edge[1])
 
     def _reliable_at(self, dbn: DBN, theta: float) -> bool:
@@ -516,20 +649,33 @@ class Agent:
         return prob_above(theta, float(dbn.cpt_s[i]), float(dbn.cpt_f[i]), self.params.prior,
                           self.params.beta_confidence)
 
-    def _add_plan(self, dbn: DBN, t: int) -> Plan | None:
+    def _add_plan(self, dbn: DBN, created: int, plan_id: int | None = None,
+                  planned: np.ndarray | None = None) -> Plan | None:
+        """A new plan of ``dbn`` (id ``plan_id``, default the next one), planned by value
+        iteration unless ``planned`` gives Q* (§5.2.2)."""
         if plan_entries((), dbn, self._sizes()) > self.params.max_plan_entries:
-            self.counters.extra["plans_too_large"] = \
-                self.counters.extra.get("plans_too_large", 0) + 1
+            self._count_too_large()
+            if self._compiling is not None:
+                self._compiling.append(SkipPlan(dbn.id))
             return None
-        plan = Plan(self.next_plan_id, dbn, self.table, self.params, t, len(self.table))
-        self.next_plan_id += 1
+        pid = self.next_plan_id if plan_id is None else plan_id
+        plan = Plan(pid, dbn, self.table, self.params, created, len(self.table))
+        self.next_plan_id = max(self.next_plan_id, pid + 1)
         self.plans[plan.id] = plan
         dbn.is_plan = True
-        self._rebuild(plan, fresh=True)                 # plan_entries bounds its size
+        self._rebuild(plan, fresh=True, planned=planned)  # plan_entries bounds its size
         self.counters.plans_created += 1
+        if self._compiling is not None:
+            self._compiling.append(AddPlan(pid, dbn.id, plan.q.copy()))
         return plan
 
+    def _count_too_large(self) -> None:
+        self.counters.extra["plans_too_large"] = \
+            self.counters.extra.get("plans_too_large", 0) + 1
+
     def _remove_plan(self, pid: int) -> None:
+        if self._compiling is not None:
+            self._compiling.append(RemovePlan(pid))
         plan = self.plans.pop(pid)
         self._plans_changed()
         dbn = self.learner.dbns.get(plan.dbn_id)
@@ -1068,20 +1214,24 @@ class Agent:
     # ------------------------------------------------------------------------------------------
     def to_state(self) -> dict[str, Any]:
         """As JSON, ``seen_applied``: the learner's ``applied_count`` when the plans last
-        followed a batch (:meth:`decide`). Every other part of the agent's state is in public
-        fields (``qlap_runtime/qlap/checkpoint.py`` writes them); :meth:`load_state` is the
-        inverse."""
-        return {"seen_applied": self._seen_applied}
+        followed a batch (:meth:`decide`), and the plan deltas not yet applied. Every other
+        part of the agent's state is in public fields (``qlap_runtime/qlap/checkpoint.py``
+        writes them); :meth:`load_state` is the inverse."""
+        return {"seen_applied": self._seen_applied,
+                "pending_plans": [d.to_json() for d in self.pending_plans]}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`to_state`'s fields."""
         self._seen_applied = int(state["seen_applied"])
+        self.pending_plans = deque(PlanDelta.from_json(d)
+                                   for d in state.get("pending_plans", []))
 
-    def restore_plan(self, plan: Plan) -> None:
+    def restore_plan(self, plan: Plan, q: np.ndarray | None = None) -> None:
         """Add a plan read from a checkpoint (its DBN in the learner): its state space is built
-        from the DBN as for a new plan; the caller then puts back its Q-table and traces."""
+        from the DBN as for a new plan, with its saved Q-table ``q`` (else value iteration);
+        the caller then puts back its Q-table and traces."""
         self.plans[plan.id] = plan
-        self._rebuild(plan, fresh=True)
+        self._rebuild(plan, fresh=True, planned=q)
 
     @property
     def last_percept(self) -> Percept | None:

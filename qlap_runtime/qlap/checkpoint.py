@@ -179,15 +179,18 @@ as ``K.npy.xz``: their ``.npy`` compressed with xz (LZMA, preset 0), about a fif
 deflate for a second or two per checkpoint."""
 
 
-def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+def _write_npz(path: Path, arrays: dict[str, np.ndarray], fast: bool = False) -> None:
     """An npz (a zip of ``.npy`` files, deflated, as ``np.savez_compressed`` writes it), with
-    the :data:`XZ_ARRAYS` stored as ``.npy.xz`` entries instead."""
+    the :data:`XZ_ARRAYS` stored as ``.npy.xz`` entries instead; ``fast``: stored, not
+    compressed (``np.savez``)."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", allowZip64=True) as zf:
         for key, value in arrays.items():
             npy = io.BytesIO()
             np.lib.format.write_array(npy, np.asanyarray(value), allow_pickle=False)
-            if key in XZ_ARRAYS:
+            if fast:
+                zf.writestr(f"{key}.npy", npy.getvalue(), compress_type=zipfile.ZIP_STORED)
+            elif key in XZ_ARRAYS:
                 zf.writestr(f"{key}.npy.xz", lzma.compress(npy.getvalue(), preset=0),
                             compress_type=zipfile.ZIP_STORED)
             else:
@@ -260,13 +263,17 @@ def learner_state(learner: ModelLearner) -> tuple[dict[str, Any], dict[str, np.n
     return meta, arrays
 
 
-def save_learner(learner: ModelLearner, directory: str | Path, name: str = "learner") -> Path:
-    """Write the learner's state to ``directory/name.{json,npz}`` atomically."""
+def save_learner(learner: ModelLearner, directory: str | Path, name: str = "learner",
+                 fast: bool = False) -> Path:
+    """Write the learner's state to ``directory/name.{json,npz}`` atomically; ``fast``: as
+    plain arrays, uncompressed (a copy for another process, read once: the planner's)."""
     directory = Path(directory)
     meta, arrays = learner_state(learner)
-    rows = ["perception.hist_x"] + [k for k in arrays if k.startswith("dbn.")
-                                    and k.endswith(("act_x", "pending_x"))]
-    _write_npz(directory / f"{name}.npz", _group(_pack_rows(arrays, rows), "dbn"))
+    if not fast:
+        rows = ["perception.hist_x"] + [k for k in arrays if k.startswith("dbn.")
+                                        and k.endswith(("act_x", "pending_x"))]
+        arrays = _group(_pack_rows(arrays, rows), "dbn")
+    _write_npz(directory / f"{name}.npz", arrays, fast)
     _write_compact_json(directory / f"{name}.json", meta)
     return directory
 
@@ -519,13 +526,15 @@ def _unpack_q(shape: tuple[int, ...], na_bits: np.ndarray, shuffled: np.ndarray)
     return q
 
 
-def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> Path:
+def save_agent(agent: Any, directory: str | Path, world: str | None = None,
+               fast: bool = False) -> Path:
     """Write the agent's full state (learner, actions, plans, call list, RNG) atomically.
 
     ``world``: the spec of the world the agent learned in (``qlap eval``/``qlap curve`` read it
-    so that an evaluation needs no ``--world``)."""
+    so that an evaluation needs no ``--world``). ``fast``: plain arrays, uncompressed (see
+    :func:`save_learner`)."""
     directory = Path(directory)
-    save_learner(agent.learner, directory)
+    save_learner(agent.learner, directory, fast=fast)
     arrays: dict[str, np.ndarray] = {}
     plans = []
     for pid in sorted(agent.plans):
@@ -558,9 +567,9 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None) -> P
     }
     if world is not None:
         meta["world"] = str(world)
-    _write_npz(directory / "agent.npz",
+    _write_npz(directory / "agent.npz", arrays if fast else
                _group(_pack_rows(arrays, [k for k in arrays if k.endswith(".call_x")]),
-                      "plan"))
+                      "plan"), fast)
     _write_compact_json(directory / "agent.json", meta)
     return directory
 
@@ -610,15 +619,16 @@ def load_agent(directory: str | Path) -> Any:
             pl.call_ok = arrays[f"plan.{pid}.call_ok"].astype(bool)
             pl.cpt_s = arrays[f"plan.{pid}.cpt_s"].astype(float)
             pl.cpt_f = arrays[f"plan.{pid}.cpt_f"].astype(float)
-            agent.restore_plan(pl)
             if "q" in d:                                        # version 1
-                pl.q = q_from_state(d["q"])
+                q = q_from_state(d["q"])
             elif f"plan.{pid}.q" in arrays:                    # version 2
                 q = arrays[f"plan.{pid}.q"].astype(float)
-                pl.q = np.where(np.isfinite(q), q, NOT_APPLICABLE)
+                q = np.where(np.isfinite(q), q, NOT_APPLICABLE)
             else:
-                pl.q = _unpack_q(tuple(int(n) for n in d["q_shape"]),
-                                 arrays[f"plan.{pid}.q_na"], arrays[f"plan.{pid}.q_values"])
+                q = _unpack_q(tuple(int(n) for n in d["q_shape"]),
+                              arrays[f"plan.{pid}.q_na"], arrays[f"plan.{pid}.q_values"])
+            agent.restore_plan(pl, q)           # the saved Q-table: no value iteration
+            pl.q = q
             traces = arrays[f"plan.{pid}.traces"]
             pl.sarsa = SarsaLambda(pl.q, learner.params,
                                    traces.astype(float) if traces.size else None)

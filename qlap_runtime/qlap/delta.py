@@ -67,7 +67,7 @@ def _fail(op: str, field: str, what: str, value: Any) -> ValueError:
     return ValueError(f"delta operation {op}: {field} must be {what}, got {value!r}")
 
 
-def _items(op: str, item: Any, n: int) -> Sequence[Any]:
+def op_items(op: str, item: Any, n: int) -> Sequence[Any]:
     """The JSON list of an operation, checked for its tag and its length."""
     if not isinstance(item, list | tuple) or not item or item[0] != op:
         raise ValueError(f"delta operation {op}: not a list led by {op!r}: {item!r}")
@@ -77,7 +77,7 @@ def _items(op: str, item: Any, n: int) -> Sequence[Any]:
     return item
 
 
-def _int(op: str, field: str, v: Any, low: int = 0) -> int:
+def int_field(op: str, field: str, v: Any, low: int = 0) -> int:
     if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < low:
         raise _fail(op, field, f"an integer ≥ {low}", v)
     return int(v)
@@ -98,17 +98,17 @@ def _choice(op: str, field: str, v: Any, allowed: tuple[str, ...]) -> str:
 def _event(op: str, field: str, v: Any) -> Event:
     if not isinstance(v, list | tuple) or len(v) != 3:
         raise _fail(op, field, "an event [var, value, direction]", v)
-    var = _int(op, f"{field}.var", v[0])
-    value = _int(op, f"{field}.value", v[1])
+    var = int_field(op, f"{field}.var", v[0])
+    value = int_field(op, f"{field}.value", v[1])
     if isinstance(v[2], bool) or v[2] not in (-1, 0, 1):
         raise _fail(op, f"{field}.direction", "-1, 0 or 1", v[2])
     return Event(var, value, int(v[2]))
 
 
-def _vars(op: str, field: str, v: Any) -> tuple[int, ...]:
+def vars_field(op: str, field: str, v: Any) -> tuple[int, ...]:
     if not isinstance(v, list | tuple):
         raise _fail(op, field, "a list of variable indexes", v)
-    return tuple(_int(op, f"{field}[{i}]", x) for i, x in enumerate(v))
+    return tuple(int_field(op, f"{field}[{i}]", x) for i, x in enumerate(v))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -125,7 +125,7 @@ class Refresh:
 
     @classmethod
     def from_json(cls, item: Any) -> Refresh:
-        _items(cls.NAME, item, 1)
+        op_items(cls.NAME, item, 1)
         return cls()
 
 
@@ -141,8 +141,8 @@ class SetK:
 
     @classmethod
     def from_json(cls, item: Any) -> SetK:
-        _, k = _items(cls.NAME, item, 2)
-        return cls(_int(cls.NAME, "k", k, low=1))
+        _, k = op_items(cls.NAME, item, 2)
+        return cls(int_field(cls.NAME, "k", k, low=1))
 
 
 @dataclass(frozen=True)
@@ -169,9 +169,9 @@ class AddDBN:
     @classmethod
     def from_json(cls, item: Any) -> AddDBN:
         n = cls.NAME
-        _, kind, e1, e2, ctx = _items(n, item, 5)
+        _, kind, e1, e2, ctx = op_items(n, item, 5)
         return cls(_choice(n, "kind", kind, (CHANGE, MAGNITUDE)), _event(n, "antecedent", e1),
-                   _event(n, "consequent", e2), _vars(n, "context", ctx))
+                   _event(n, "consequent", e2), vars_field(n, "context", ctx))
 
 
 @dataclass(frozen=True)
@@ -191,8 +191,8 @@ class SetContext:
     @classmethod
     def from_json(cls, item: Any) -> SetContext:
         n = cls.NAME
-        _, dbn_id, ctx = _items(n, item, 3)
-        return cls(_int(n, "dbn_id", dbn_id), _vars(n, "context", ctx))
+        _, dbn_id, ctx = op_items(n, item, 3)
+        return cls(int_field(n, "dbn_id", dbn_id), vars_field(n, "context", ctx))
 
 
 @dataclass(frozen=True)
@@ -207,8 +207,8 @@ class DeleteDBN:
 
     @classmethod
     def from_json(cls, item: Any) -> DeleteDBN:
-        _, dbn_id = _items(cls.NAME, item, 2)
-        return cls(_int(cls.NAME, "dbn_id", dbn_id))
+        _, dbn_id = op_items(cls.NAME, item, 2)
+        return cls(int_field(cls.NAME, "dbn_id", dbn_id))
 
 
 @dataclass(frozen=True)
@@ -242,12 +242,12 @@ class AddLandmark:
     @classmethod
     def from_json(cls, item: Any) -> AddLandmark:
         n = cls.NAME
-        _, var, lb, ub, source, step, dbn_id, ante, ctx = _items(n, item, 9)
-        return cls(_int(n, "var", var), _finite(n, "lb", lb), _finite(n, "ub", ub),
-                   _choice(n, "source", source, cls.SOURCES), _int(n, "step", step),
-                   None if dbn_id is None else _int(n, "dbn_id", dbn_id),
+        _, var, lb, ub, source, step, dbn_id, ante, ctx = op_items(n, item, 9)
+        return cls(int_field(n, "var", var), _finite(n, "lb", lb), _finite(n, "ub", ub),
+                   _choice(n, "source", source, cls.SOURCES), int_field(n, "step", step),
+                   None if dbn_id is None else int_field(n, "dbn_id", dbn_id),
                    None if ante is None else _event(n, "antecedent", ante),
-                   None if ctx is None else _vars(n, "context", ctx))
+                   None if ctx is None else vars_field(n, "context", ctx))
 
 
 Op = Refresh | SetK | AddDBN | SetContext | DeleteDBN | AddLandmark

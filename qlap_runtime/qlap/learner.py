@@ -160,6 +160,16 @@ class ModelLearner:
                 self.pending_deltas.append(delta)
         return p
 
+    _batch_work: ModelLearner | None = None
+
+    def take_batch(self) -> ModelLearner | None:
+        """The learner of the batch computed at the latest step, with the batch's operations
+        applied, for the plan compilation that follows it (Algorithm 2 line 15); once, None
+        when no batch was computed since the last call. With a lag it is the batch's own copy,
+        else a copy of this learner."""
+        work, self._batch_work = self._batch_work, None
+        return self.batch_copy() if work is self else work
+
     def _update_window(self, p: Percept) -> None:
         motor_events = [(e.var, int(i)) for e, i in zip(p.events, p.event_ids, strict=True)
                         if self.table[e.var].kind is Kind.MOTOR]
@@ -329,6 +339,7 @@ class ModelLearner:
                       apply_at=step + self.params.batch_lag, ops=ops)
         if work is self:
             delta = delta.mark_applied()
+        self._batch_work = work
         return delta
 
     def batch_copy(self) -> ModelLearner:
@@ -384,12 +395,16 @@ class ModelLearner:
         del self.applied[:-50]
 
     def _clone_for_batch(self) -> ModelLearner:
-        memo: dict[int, Any] = {}
-        # The histories are only read by a batch: share them instead of copying.
-        for arr in (self.perception.hist_x, self.perception.hist_q):
-            memo[id(arr)] = arr
-        memo[id(self.pending_deltas)] = deque()
-        return copy.deepcopy(self, memo)
+        # The histories are copied too (a few MB): they are rings, and once full this learner,
+        # going on while a batch computes in another thread, writes over the oldest rows the
+        # batch still reads (embedded core runs of 30,000 steps parted from the synchronous
+        # loop in 3 of 6 trials, Params.event_history being 20,000 steps).
+        memo: dict[int, Any] = {id(self.pending_deltas): deque()}
+        work, self._batch_work = self._batch_work, None     # never part of a copy
+        try:
+            return copy.deepcopy(self, memo)
+        finally:
+            self._batch_work = work
 
     def _refresh_reliability(self) -> None:
         """Sticky "sufficiently reliable at any time" flags from the CPTs (§4.2.2)."""

@@ -1143,7 +1143,8 @@ def _merged_ancestors(q_old: np.ndarray, old: PlanStateSpace, old_vals: np.ndarr
     grid = np.asarray(q_old, dtype=float)[:, cols].reshape(*old.sizes, len(cols))
     grid = np.moveaxis(grid, dropped, list(range(len(dropped))))  # C order: np.ndindex's
     n_combos = int(np.prod([old.sizes[i] for i in dropped], dtype=np.int64))
-    grid = grid.reshape(n_combos, -1, len(cols))
+    n_kept = int(np.prod([old.sizes[i] for i in kept], dtype=np.int64))
+    grid = grid.reshape(n_combos, n_kept, len(cols))    # also with no column (no -1)
     finite = np.isfinite(grid)
     values = np.where(finite, grid, 0.0)
     acc = np.zeros(values.shape[1:])

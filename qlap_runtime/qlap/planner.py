@@ -9,6 +9,7 @@ extra context C_o.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -94,6 +95,8 @@ class Plan:
         self.usable: Usable | None = None
         self.ever_reliable = False
         """Sticky: brel(o) > θ_SR at some time (§5.4.1); see :meth:`refresh_reliable`."""
+        self.last_planned: np.ndarray | None = None
+        """Q* computed by value iteration in the last :meth:`build` (None: none needed)."""
         self._context_unchanged: tuple | None = None
         """The inputs of the last C_o search that found no change (see update_context)."""
         self._recounted: tuple | None = None
@@ -106,7 +109,7 @@ class Plan:
     def build(self, dbn: DBN, sizes: Mapping[int, int] | list[int], rel_action: RelAction,
               rel_model: Callable[[PlanStateSpace], np.ndarray], fresh: bool = False,
               value_maps: Mapping[int, np.ndarray] | None = None,
-              usable: Usable | None = None) -> bool:
+              usable: Usable | None = None, planned: np.ndarray | None = None) -> bool:
         """(Re)build the MDP from the DBN's current structure; keep Q if the space is unchanged.
 
         A fresh plan is planned by value iteration (§5.2.2). When the state space or the action
@@ -117,7 +120,12 @@ class Plan:
         rest as the model improves. ``usable(var, value)`` False removes a(var, value) from the
         plan (a motor value out of the motor's range, §5.5). Returns True when the structure
         changed (state and action indices of the old space are void).
+
+        ``planned``: Q* of the new model computed elsewhere (a plan compilation, §5.2.2), used
+        instead of value iteration here when it has the model's shape; :attr:`last_planned`
+        is the Q* this build computed itself (None when it needed none).
         """
+        self.last_planned = None
         g = dbn.consequent                       # landmarks may have renumbered it
         goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
         if goal != self.goal:
@@ -154,12 +162,18 @@ class Plan:
         self.model = self._model(rel_action, rel_model)
         if not same:
             model, params = self.model, self.params
+
+            def plan() -> np.ndarray:
+                if planned is not None and planned.shape == model.applicable.shape:
+                    return np.array(planned, dtype=float, copy=True)
+                self.last_planned = value_iteration(model, params)
+                return self.last_planned.copy()
+
             grown = None
             if not fresh and old_space is not None:
                 grown = grow_q(old_q, old_space, old_actions, space, actions,
-                               value_maps or {}, lambda: value_iteration(model, params),
-                               model.applicable)
-            self.q = value_iteration(model, params) if grown is None else grown
+                               value_maps or {}, plan, model.applicable)
+            self.q = plan() if grown is None else grown
             self.sarsa = SarsaLambda(self.q, self.params)
         return not same
 
@@ -214,6 +228,17 @@ class Plan:
         self.model = self._model(rel_action, rel_model)
         if dyna:
             dyna_sweep(self.q, self.model, self.params)
+
+    def snapshot(self) -> Plan:
+        """A copy that stays as this plan is now while this one goes on learning: the arrays
+        written in place (Q by Sarsa and Dyna, the stored calls and the second-order counts by
+        :meth:`record_call`) are its own; everything else is replaced, never written, by the
+        plan's methods, so it is shared."""
+        c = copy.copy(self)
+        c.q, c.call_x, c.call_ok = self.q.copy(), self.call_x.copy(), self.call_ok.copy()
+        c.cpt_s, c.cpt_f = self.cpt_s.copy(), self.cpt_f.copy()
+        c.sarsa = None                           # its traces are the executor's
+        return c
 
     # -- second-order statistics (§5.4) ------------------------------------------------------
     def record_call(self, x: np.ndarray, success: bool, cell: int) -> None:

@@ -135,3 +135,31 @@ def delta_rule(params: Params, n_vars: int, realtime: bool = False) -> Rule:
         return None
 
     return check
+
+
+def planreq_rule(files: tuple[str, ...]) -> Rule:
+    """``planreq``: the checkpoint files of an agent and nothing else (a rejected step: none)."""
+
+    def check(msg: Any) -> str | None:
+        want = set() if msg.rejected or msg.last or msg.local else set(files)
+        if set(msg.files) != want:
+            return f"planreq({msg.step}): files {sorted(msg.files)} (expected {sorted(want)})"
+        return None
+
+    return check
+
+
+def plan_delta_rule(params: Params, realtime: bool = False) -> Rule:
+    """``delta/plans``: computed at a batch step, applied at computed_at + L (lockstep)."""
+
+    def check(msg: Any) -> str | None:
+        d = msg.delta
+        at = d["computed_at"]
+        if not batch_kinds(params, at):
+            return f"delta/plans computed at {at}: not a batch step"
+        if not realtime and d["apply_at"] != at + params.batch_lag:
+            return f"delta/plans computed at {at}: apply_at {d['apply_at']} is not " \
+                   f"{at} + lag {params.batch_lag}"
+        return None
+
+    return check

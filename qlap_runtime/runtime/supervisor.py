@@ -27,7 +27,7 @@ from .snapshot import latest_snapshot
 
 log = logging.getLogger("qlap.supervisor")
 
-RESTARTABLE = frozenset({"perception", "contingency", "landmarks", "executor"})
+RESTARTABLE = frozenset({"perception", "contingency", "landmarks", "planner", "executor"})
 MAX_RESTARTS = 3
 """Restarts allowed per actor in one run."""
 

@@ -32,7 +32,7 @@ def qlap(*args: str) -> list[str]:
     return [sys.executable, "-m", "qlap_runtime.cli", *args]
 
 
-def test_router_and_five_actor_processes_learn_what_the_synchronous_loop_learns(tmp_path):
+def test_router_and_six_actor_processes_learn_what_the_synchronous_loop_learns(tmp_path):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     router = subprocess.Popen(qlap("router", "--listen", endpoint),
@@ -43,7 +43,7 @@ def test_router_and_five_actor_processes_learn_what_the_synchronous_loop_learns(
         common = ["--connect", endpoint, "--run", "dist-test", "--world", "core2d", "--steps",
                   str(STEPS), "--seed", str(SEED), "--lag", str(LAG), "--babble-steps",
                   str(BABBLE)]
-        for name in ("perception", "contingency", "landmarks", "executor", "world"):
+        for name in ("perception", "contingency", "landmarks", "planner", "executor", "world"):
             # The world and contingency actors write their parts of the final checkpoint
             # into the same --out (one machine here; a shared directory across machines).
             extra = ["--out", str(tmp_path)] if name in ("executor", "world",

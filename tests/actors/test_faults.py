@@ -67,6 +67,7 @@ class Killer:
 
 @pytest.mark.parametrize("victim", [
     "contingency",              # a learner: batches in flight, its own deltas to serve again
+    "planner",                  # compilations: requests and deltas fetched again
     pytest.param("perception", marks=pytest.mark.slow),
     pytest.param("landmarks", marks=pytest.mark.slow),
     pytest.param("executor", marks=pytest.mark.slow)])

@@ -67,7 +67,8 @@ def test_rule_breaking_messages_are_counted_and_change_nothing(tmp_path):
     assert actors["contingency"]["rejected"] == 3 * n    # qstate unknown var, two bad deltas
     assert actors["landmarks"]["rejected"] == 3 * n
     assert actors["executor"]["rejected"] == 4 * n       # ... and the save outside the run
-    assert summary["rejected_messages"] == 16 * n
+    assert actors["planner"]["rejected"] == 2 * n        # the two bad deltas
+    assert summary["rejected_messages"] == 18 * n
     assert not (tmp_path / "escaped").exists()
     got = (out / "knowledge.json").read_text()
     assert json.loads(got)["dbns"]

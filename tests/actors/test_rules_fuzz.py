@@ -26,7 +26,7 @@ N_VARS = 1000                                             # far above any world'
 
 # Which actors count a forgery of each kind (tests/actors/test_rules.py has the same accounting).
 READERS = {"motor": ("world",), "sense": ("perception",),
-           "delta": ("perception", "contingency", "landmarks", "executor"),
+           "delta": ("perception", "contingency", "landmarks", "planner", "executor"),
            "qstate": ("contingency", "landmarks", "executor"), "save": ("executor",)}
 
 names = st.text("abcdefghijklmnopqrstuvwxyz_", min_size=1, max_size=8)
@@ -96,7 +96,8 @@ def test_random_forgeries_are_counted_and_change_nothing(tmp_path_factory, forge
 
     ctx = context(out, "core2d", PARAMS, 3, "t-fuzz")
     summary = trio.run(lambda: run_embedded_async(ctx, extra=(forger,)))
-    expected = dict.fromkeys(("world", "perception", "contingency", "landmarks", "executor"), 0)
+    expected = dict.fromkeys(("world", "perception", "contingency", "landmarks", "planner",
+                              "executor"), 0)
     for kind, *_ in forgeries:
         for actor in READERS[kind]:
             expected[actor] += 1

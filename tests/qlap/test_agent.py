@@ -507,7 +507,9 @@ def test_a_landmark_batch_renumbers_the_running_call_list_and_keeps_q(trained):
     full = {"x": world.x, **agent.motor}
     p = agent.learner.observe(t, full)
     agent._seen_applied = agent.learner.applied_count
-    agent._after_batch(p)
+    # The plans follow as in a lockstep batch: a compilation on a copy, applied at once.
+    delta = agent.planning_copy(agent.learner.batch_copy()).compile_plans(t, t)
+    agent.apply_plans(delta, p, agent._follow_landmarks())
     assert agent.counters.call_list_interrupts == interrupts           # not interrupted
     assert [f.key for f in agent.call_list] == \
         [(v, q + 2) if v == u else (v, q) for v, q in old_keys]

@@ -202,7 +202,8 @@ def test_agent_state_and_restored_plans(tmp_path):
     agent = Agent(SPECS, Params(), seed=0)
     for t, obs in babble_stream(600, 2):
         agent.step(t, {"x": obs["x"]})
-    assert agent.to_state() == {"seen_applied": agent.learner.applied_count}
+    assert agent.to_state() == {"seen_applied": agent.learner.applied_count,
+                                "pending_plans": []}
     assert agent.last_percept is not None and agent.last_percept.step == 599
     save_agent(agent, tmp_path)
     assert json.loads((tmp_path / "agent.json").read_text())["seen_applied"] == \
@@ -210,4 +211,4 @@ def test_agent_state_and_restored_plans(tmp_path):
     loaded = load_agent(tmp_path)
     assert loaded.to_state() == agent.to_state()
     loaded.load_state({"seen_applied": 41})
-    assert loaded.to_state() == {"seen_applied": 41}
+    assert loaded.to_state() == {"seen_applied": 41, "pending_plans": []}

@@ -189,6 +189,19 @@ def test_grow_q_adds_and_drops_variables() -> None:
     np.testing.assert_array_equal(q[:, :3], -1.5)           # new actions: base
 
 
+def test_grow_q_drops_a_variable_when_no_old_action_continues() -> None:
+    # Every old action is on the dropped variable 0: no column carries over, every pair takes
+    # base (a reshape with no column once failed; seen in a core run with lag 500).
+    old = PlanStateSpace((0, 1), (2, 2))
+    old_actions = [MDPAction(0, 0), MDPAction(0, 1)]
+    new = PlanStateSpace((1,), (2,))
+    new_actions = [MDPAction(1, 1, Role.ANTECEDENT)]
+    base = np.full((2, 1), -2.5)
+    q = grow_q(np.zeros((4, 2)), old, old_actions, new, new_actions, {}, base)
+    assert q is not None
+    np.testing.assert_array_equal(q, base)
+
+
 def test_descendant_state_prefers_the_current_values() -> None:
     old = PlanStateSpace((7, 2), (3, 2))
     new = PlanStateSpace((7, 2, 9), (5, 2, 3))             # 7 split at 2, 9 added

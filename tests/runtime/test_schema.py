@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from qlap_runtime.bus import keys
@@ -22,7 +23,9 @@ from qlap_runtime.bus.schema import (
     LandmarkInfo,
     MessageError,
     Motor,
+    PlanDeltaMsg,
     PlanInfo,
+    PlanRequest,
     QState,
     Rejected,
     Sense,
@@ -33,6 +36,8 @@ from qlap_runtime.bus.schema import (
     json_schema,
 )
 from qlap_runtime.qlap.delta import AddDBN, AddLandmark, Delta, SetK
+from qlap_runtime.qlap.mdp import NOT_APPLICABLE
+from qlap_runtime.qlap.plan_delta import AddPlan, PlanContexts, PlanDelta, Rebuild, RemovePlan
 from qlap_runtime.qlap.variables import Event
 
 EXAMPLES = {
@@ -44,8 +49,10 @@ EXAMPLES = {
         SetK(4), AddDBN("change", Event(0, 2, 0), Event(3, 1, 1), ())))),
     "delta/landmarks": DeltaMsg.of("landmarks", Delta(1, 4000, 4500, (
         AddLandmark(3, 0.1, 0.2, "event", 4000),))),
-    "delta/plans": DeltaMsg("plans", {"version": 1, "computed_at": 0, "apply_at": 0,
-                                      "ops": []}),
+    "delta/plans": PlanDeltaMsg.of(PlanDelta(4000, 4500, (
+        RemovePlan(3), PlanContexts(((5, (2, 7)),)),
+        AddPlan(9, 12, np.array([[0.5, NOT_APPLICABLE], [1.25, 0.0]])), Rebuild(5)))),
+    "planreq": PlanRequest(4000, {"agent.json": "e30="}),
     "calllist": CallList(7, ("a(hand_x,2)", "a(T,1)")),
     "iac": IACChoice(7, "a(T,1)", 0.4, 12, False, {"a(T,1)": 0.4, "a(hand_x,2)": 0.1}),
     "stats": Stats(7, "world", 2100.5, waits=1, late_ticks=2, missed_ticks=0,
@@ -120,8 +127,14 @@ def test_malformed_sense_is_rejected_with_its_key(payload, reason):
 
 
 def test_type_specific_rules():
-    with pytest.raises(MessageError, match="qlap/r/delta/plans: .*kind 'dbn'"):
+    with pytest.raises(MessageError, match="qlap/r/delta/plans: .*step"):
         decode("qlap/r/delta/plans", encode(EXAMPLES["delta/dbn"]))
+    with pytest.raises(MessageError, match="qlap/r/delta/dbn: .*unknown field"):
+        decode("qlap/r/delta/dbn", encode(EXAMPLES["delta/plans"]))
+    with pytest.raises(MessageError, match="add_plan: q.values"):
+        decode("qlap/r/delta/plans", b'{"step":1,"delta":{"computed_at":1,"apply_at":2,'
+                                     b'"ops":[["add_plan",0,1,{"shape":[1,1],"na":"AA==",'
+                                     b'"values":""}]]},"version":1}')
     bad_op = b'{"kind":"dbn","delta":{"version":1,"computed_at":0,"apply_at":0,' \
              b'"ops":[["rm_rf"]]},"version":1}'
     with pytest.raises(MessageError, match="unknown delta operation"):

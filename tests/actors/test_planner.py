@@ -1,0 +1,37 @@
+"""The planner actor (Algorithm 2 line 15; docs/decisions.md 56): every batch's plan
+compilation off the step chain, applied by the executor at t + L, to the synchronous loop's
+knowledge."""
+
+from __future__ import annotations
+
+import json
+
+import worlds
+from actors.planner import compiled_steps
+from qlap_runtime import agent_run
+from qlap_runtime.agent_run import params_for_world
+from qlap_runtime.placements.launcher import run_embedded
+from qlap_runtime.qlap import Params
+from qlap_runtime.runtime.context import RunContext
+
+STEPS = 4000
+# Batches every 500 steps, k fixed and 15 data points (App. B.2): plans within 4,000 steps.
+PARAMS = Params(babble_steps=1500, dbn_period=500, landmark_period=1000, batch_lag=200,
+                k_fixed=5, min_data_points=15)
+
+
+def test_the_planner_compiles_every_batch_and_the_agent_learns_what_the_sync_loop_learns(
+        tmp_path):
+    world = worlds.make("core2d")
+    params = params_for_world(world, PARAMS)
+    world.close()
+    expected = agent_run.sync_knowledge("core2d", STEPS, 5, params)
+    ctx = RunContext("t-planner", "core2d", STEPS, 5, params, out=tmp_path)
+    summary = run_embedded(ctx)
+    planner = summary["actors"]["planner"]
+    # Batches at 500, 1000, …, 3500; each one's plan delta applies within the run.
+    assert compiled_steps(ctx, -1) == list(range(500, STEPS, 500))
+    assert planner["compilations"] == 7 and planner["rejected"] == 0
+    got = (tmp_path / "knowledge.json").read_text()
+    assert sum(len(a["plans"]) for a in json.loads(got)["actions"]) >= 3, "too few plans"
+    assert got == expected
