@@ -7,11 +7,14 @@ more, so that a run does not learn for hours and then lose its knowledge at the 
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
+from typing import Any
 
 from ..errors import CliError
+from ..qlap.checkpoint import atomic_write_json
 
 MIN_FREE = 32 * 2**20
 """Bytes that must be free under ``--out`` before a run starts."""
@@ -45,3 +48,15 @@ def check_out(out: Path, min_free: int = MIN_FREE) -> None:
     if free < min_free:
         raise OutputError(f"--out {out}: {free / 2**20:.1f} MB free, a run needs at least "
                           f"{min_free / 2**20:.0f} MB (room for a checkpoint)")
+
+
+def write_failure_summary(out: Path, **fields: Any) -> None:
+    """``summary.json`` of a run whose world failed: the executor's summary
+    (``actors/executor.json``, when it wrote one) with ``fields`` (the failure) added."""
+    executor = Path(out) / "actors" / "executor.json"
+    try:
+        summary = json.loads(executor.read_text()) if executor.exists() else {}
+    except (OSError, ValueError):
+        summary = {}
+    summary.update(fields)
+    atomic_write_json(Path(out) / "summary.json", summary)
