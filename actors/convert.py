@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from qlap_runtime.bus.schema import BatchContext, QState, WorldView
+from qlap_runtime.bus.schema import BatchContext, QState, Sense, WorldView
 from qlap_runtime.qlap.delta import AddLandmark
 from qlap_runtime.qlap.perception import MAX_ABS_VALUE, InvalidObservation, Percept, Perception
 from qlap_runtime.qlap.quantity import Landmark
@@ -40,6 +40,20 @@ def sense_values(values: dict, available_from: dict[str, int], t: int) -> tuple[
                 out[k] = math.copysign(sys.float_info.max, fv)
             bad = True
     return out, bad
+
+
+class SenseCodec:
+    """``sense(t)`` messages of one world (:func:`sense_values`), counting those the agent
+    rejects."""
+
+    def __init__(self, variables: Any) -> None:
+        self.available = {v.name: int(getattr(v, "available_from", 0) or 0) for v in variables}
+        self.rejected = 0
+
+    def message(self, t: int, obs: dict, applied: dict, discontinuity: bool) -> Sense:
+        values, bad = sense_values({**obs, **applied}, self.available, t)
+        self.rejected += bad
+        return Sense(t, values, discontinuity)
 
 
 def rejection_as_sent(per: Perception, t: int, msg: Any,

@@ -1,13 +1,10 @@
 """The two batch-learning actors (Algorithm 2 lines 6–13), sharing one implementation.
 
-Both keep a :class:`~qlap_runtime.qlap.learner.ModelLearner` updated from the ``qstate``
-stream and apply every delta at its step boundary: replicas of the synchronous loop's learner.
-``contingency`` computes lines 6–9 at every DBN batch and publishes ``delta/dbn``;
-``landmarks`` computes lines 6–9 on its private copy (it sees the DBNs as the sequential
-Algorithm 2 does), then lines 10–13, and publishes ``delta/landmarks``. How a batch runs
-(a copy, a worker thread, the delta applied by all at t + L) is
-:mod:`qlap_runtime.runtime.batches`'. In the embedded placement both actors run in one task
-on one learner (:func:`run_pair`, docs/decisions.md 54).
+Both keep a :class:`~qlap_runtime.qlap.learner.ModelLearner` from the ``qstate`` stream and apply
+every delta at its step boundary: replicas of the synchronous loop's learner. ``contingency``
+computes lines 6–9 at every DBN batch (``delta/dbn``); ``landmarks`` computes lines 6–9 on its
+own copy, then 10–13 (``delta/landmarks``). How a batch runs is :mod:`~qlap_runtime.runtime.
+batches`'; in the embedded placement both run in one task on one learner (:func:`run_pair`).
 """
 
 from __future__ import annotations
@@ -19,10 +16,10 @@ import trio
 from qlap_runtime.qlap.checkpoint import save_learner
 from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.runtime.actor import Actor, ActorBase
-from qlap_runtime.runtime.batches import Batches, DeltaOutbox, context_before
+from qlap_runtime.runtime.batches import Batches
 from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.lockstep import batch_kinds
-from qlap_runtime.runtime.rules import batchctx_rule, qstate_rule
+from qlap_runtime.runtime.rules import qstate_rule
 from qlap_runtime.runtime.start_state import start_learner
 
 from .checkpoint_parts import final_dir, part_dir, save_statistics_part
@@ -52,19 +49,13 @@ class LearnerActor(ActorBase):
         self.codec = QStateCodec(self.learner.table)
         n = len(self.learner.table)
         actor.input("qstate", window=ctx.replay_keep, rule=qstate_rule(self.codec.names))
-        # The executor's state before each batch (§6.2.1); the one before the first batch
-        # after a snapshot may be of the snapshot's own step.
-        self.contexts = actor.input("batchctx", window=ctx.replay_keep, rule=batchctx_rule(n),
-                                    first=actor.resume.step)
+        self.batches = Batches(actor, self.kind, n)     # batchctx in, delta/<kind> out
         self.deltas = actor.deltas(n)
-        self.out = DeltaOutbox(actor, self.kind)
-        self.batches = Batches(ctx)
-        self.result: dict[str, Any] | None = None
         self._msg: Any = None
 
     async def start(self) -> None:
         await self.actor.start()
-        self.out.requeue(self.deltas)           # its own deltas not yet applied here
+        self.batches.out.requeue(self.deltas)           # its own deltas not yet applied here
 
     async def step(self, t: int) -> bool:
         if not await self.observe(t):
@@ -91,14 +82,13 @@ class LearnerActor(ActorBase):
         ctx = self.ctx
         if self._msg.rejected or self.kind not in batch_kinds(ctx.params, t):
             return
-        bc = await context_before(self.contexts, t, ctx)
+        bc = await self.batches.context(t)
         if guest is not None:                   # its own copy of the same context
-            await context_before(guest.contexts, t, ctx)
+            await guest.batches.context(t)
         if bc is not None:
             apply_batch_context(self.learner, bc)
-        outs = [self.out] if guest is None else [self.out, guest.out]
-        kinds = tuple(o.kind for o in outs) if self.kind == "dbn" else ("dbn", "landmarks")
-        self.batches.start(self.learner, t, kinds, outs, self.nursery)
+        outs = [self.batches.out] if guest is None else [self.batches.out, guest.batches.out]
+        self.batches.start(self.learner, t, outs, self.nursery)
 
     async def settle(self, t: int) -> None:
         """The deltas due at ``t`` (applied unless a guest), the checkpoint's statistics part
@@ -111,9 +101,7 @@ class LearnerActor(ActorBase):
         actor.slot.done(t)
         if self.role == "contingency":          # the executor's checkpoint's part
             save_statistics_part(part_dir(self.ctx, t), learner)
-        if self.out.snapshot_now(t):
-            actor.snapshot(t, lambda d: save_learner(learner, d),
-                           **self.out.snapshot_state(CONSUMERS, t))
+        self.batches.out.snapshot(t, lambda d: save_learner(learner, d), CONSUMERS)
 
     async def finish(self) -> dict[str, Any]:
         """The final statistics part; stay until the consumers are done (a consumer behind
@@ -131,9 +119,8 @@ async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
 
 
 async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
-    """Both learning actors in one task on one learner (the embedded placement): the
-    contingency actor observes each step and applies each delta once; at a landmark batch
-    step one copy and one computation serve both."""
+    """Both learning actors in one task on one learner (embedded): the contingency actor
+    observes each step and applies each delta once; one batch copy serves both."""
     with LearnerActor(session, ctx, "contingency") as host, \
             LearnerActor(session, ctx, "landmarks", shared=host.learner) as guest:
         await host.start()

@@ -33,7 +33,6 @@ class PerceptionActor(ActorBase):
         self.per = start_perception(ctx, actor.resume)
         self.codec = QStateCodec(self.per.table)
         self.rejected_obs = 0
-        self.result: dict[str, Any] | None = None
         # On the step chain: sense(t + 1) exists only once qstate(t) went out (window 1;
         # unknown variables are rejected by perceive, as in the synchronous loop).
         actor.input("sense", window=1)

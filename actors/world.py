@@ -1,34 +1,31 @@
-"""The world actor: steps the physics in lockstep with the executor (docs/architecture.md §1).
+"""The world actor: publishes ``sense(t)`` (the observation at t and the motors applied, those
+of ``motor(t − 1)``), waits for ``motor(t)``, applies it and steps (docs/architecture.md §1).
 
-Publishes ``sense(t)`` — the observation at t plus the motor values being applied (those of
-``motor(t − 1)``) — then waits for ``motor(t)``, applies it and steps; its clock
-(:mod:`qlap_runtime.runtime.clock`) obeys the UI's clock commands between two steps, and after
+Its clock (:mod:`qlap_runtime.runtime.clock`) obeys the clock commands between two steps; after
 a ``quit`` it publishes the end marker ``quit {"last_step": T}`` (docs/runtime.md, Controls). A
-value the agent would reject is counted (``rejected_senses``) and sent so that every actor
-skips step t (:func:`~actors.convert.sense_values`). The world is not restartable; its state
-goes into the run's checkpoints (``world.json``). A world whose ``step`` raises ends the run
-like a ``quit`` after its last step, then :class:`~qlap_runtime.errors.WorldFailed` is raised.
+value the agent would reject is counted and sent so that every actor skips step t
+(:class:`~actors.convert.SenseCodec`). Not restartable; its state goes into the checkpoints.
+A world whose ``step`` raises ends the run like a ``quit``, then ``WorldFailed`` is raised.
 """
 
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
 import trio
 
-from qlap_runtime.bus.schema import Control, Sense
+from qlap_runtime.bus.schema import Control
 from qlap_runtime.errors import WorldFailed
 from qlap_runtime.runtime.actor import Actor, ActorBase
-from qlap_runtime.runtime.clock import LockstepClock, RealtimeClock
+from qlap_runtime.runtime.clock import world_clock
 from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.outputs import write_failure_summary
 from qlap_runtime.runtime.rules import motor_rule
 
 from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
-from .convert import sense_values, world_view
-from .resume import applied_motors, restore_world
+from .convert import SenseCodec, world_view
+from .resume import start_world
 
 NAME = "world"
 OTHERS_END_S = 120.0
@@ -46,22 +43,14 @@ class WorldActor(ActorBase):
                  perception: ActorBase | None = None, executor: Any = None) -> None:
         self.ctx, self.world, self.perception, self.executor = ctx, world, perception, executor
         self.actor = actor = Actor(session, ctx, NAME, obey=True)
-        self.applied = {v.name: 0.0 for v in world.variables
-                        if getattr(v.kind, "value", v.kind) == "motor"}
-        self.available = {v.name: int(getattr(v, "available_from", 0) or 0)
-                          for v in world.variables}
-        if ctx.resume_checkpoint is not None:  # a resumed run: the checkpoint's state
-            self.obs = restore_world(world, ctx.resume_checkpoint)
-            self.applied.update(applied_motors(ctx.resume_checkpoint))
-        else:
-            self.obs = world.reset(seed=ctx.seed)
+        self.obs, self.applied = start_world(world, ctx)
+        self.senses = SenseCodec(world.variables)
         # A motor for a step not sensed yet cannot be the executor's (lockstep window 0).
         self.motors = actor.input("motor", window=0, rule=motor_rule(world.variables), end=False)
         self.sense = actor.output("sense")
         self.view, self.end_marker = actor.publisher("world"), actor.publisher("control")
-        self.clock = RealtimeClock(actor.controls, actor.counter, actor.slot, ctx.hz) \
-            if ctx.realtime else LockstepClock(actor.controls, actor.counter, actor.slot)
-        self.stats: dict[str, Any] = {"steps": 0, "wait_s": 0.0}
+        self.clock = world_clock(ctx.realtime, ctx.hz, actor.controls, actor.counter, actor.slot)
+        self.stats: dict[str, Any] = {"steps": 0}
         self.failure: WorldFailed | None = None
         self.last_view = 0.0
 
@@ -69,18 +58,14 @@ class WorldActor(ActorBase):
         """``sense(t)``, the hosted steps, ``motor(t)``, the physics; False: the run ends."""
         if not await self.clock.before(t):
             return False
-        values, bad = sense_values({**self.obs, **self.applied}, self.available, t)
-        if bad:
-            self.stats["rejected_senses"] = self.stats.get("rejected_senses", 0) + 1
-        self.sense.put(t, Sense(t, values, bool(getattr(self.world, "discontinuity", False))))
+        discontinuity = bool(getattr(self.world, "discontinuity", False))
+        self.sense.put(t, self.senses.message(t, self.obs, self.applied, discontinuity))
         if self.perception is not None:
             await self.perception.step(t)
         if self.executor is not None:
             await self.executor.step(t)
             await trio.lowlevel.checkpoint()    # yield once a step: learners, controls, viewers
-        t0 = time.perf_counter()
         motor = await self.clock.motor(self.motors, t)
-        self.stats["wait_s"] += time.perf_counter() - t0
         if motor is not None:
             self.applied = dict(motor.values)
         self.stats["steps"] += 1
@@ -109,35 +94,29 @@ class WorldActor(ActorBase):
         if ready is not None:
             await ready.wait()
         clock.start(ctx.start)
-        loop_t0 = time.perf_counter()
         for t in range(ctx.start, ctx.end):
             if not await self.step(t):
                 break
         last = ctx.start - 1 + stats["steps"]   # the last step sensed and its motor applied
+        stats.update(clock.stop())
+        if self.senses.rejected:
+            stats["rejected_senses"] = self.senses.rejected
         self.actor.slot.finished()
         if self.failure is None:
             save_world_part(final_dir(ctx), self.world)
         if clock.state.quit:                    # every other actor ends after step `last`
             self.end_marker.put(Control("quit", {"last_step": last}))
             stats["quit_at_step"] = last
-        # The step chain's own rate, start-up and pauses excluded (the benchmarks' figure).
-        stats["loop_s"] = round(time.perf_counter() - loop_t0 - clock.paused_s, 3)
-        stats["paused_s"] = round(clock.paused_s, 3)
         if self.executor is not None:
             await self.executor.finish(last if clock.state.quit else None)
         if self.perception is not None:
             await self.perception.finish()
-        return self.actor.result(**stats, **({} if self.failure else clock.stats()))
-
-    async def failed(self, result: dict[str, Any]) -> None:
-        """After a failure (the end marker published): once the other actors have ended, their
-        outputs written, the failure goes into the run's summary."""
-        ctx = self.ctx
-        await self.actor.others_ended(OTHERS_END_S)
-        if ctx.out is not None:
-            write_failure_summary(Path(ctx.out), placement=ctx.placement, world=ctx.world,
-                                  seed=ctx.seed, steps=result["steps"],
-                                  world_error=result["world_error"], world_actor=result)
+        self.result = self.actor.result(**stats, **clock.stats())
+        if self.failure is not None:            # once the others wrote their outputs
+            await self.actor.others_ended(OTHERS_END_S)
+            write_failure_summary(ctx, self.result)
+            raise self.failure
+        return self.result
 
 
 async def run(session: Any, ctx: RunContext, ready: trio.Event | None = None,
@@ -149,13 +128,11 @@ async def run(session: Any, ctx: RunContext, ready: trio.Event | None = None,
     world = worlds.make(ctx.world)
     try:
         with WorldActor(session, ctx, world, perception, executor) as me:
-            result = await me.run(ready)
+            return await me.run(ready)
+    except WorldFailed:
+        raise
     except BaseException:                       # cancelled (maybe in a group) by a stall
         keep_on_stall(ctx, world=world)         # a stalled run keeps the world's state
         raise
     finally:
         world.close()
-    if me.failure is not None:
-        await me.failed(result)
-        raise me.failure
-    return result

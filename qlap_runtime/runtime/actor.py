@@ -329,6 +329,8 @@ class ActorBase:
     algorithm → publish) and :meth:`finish`; :meth:`run` is its loop as a task of its own."""
 
     actor: Actor
+    result: dict[str, Any] | None = None
+    """The actor's result, once :meth:`finish` has run."""
     nursery: trio.Nursery
     """Where the actor's background work (a batch in a worker thread) runs during :meth:`run`;
     the loop ends when that work is done."""

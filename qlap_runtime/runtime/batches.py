@@ -13,6 +13,8 @@ batches in flight on the watchdog's board; :class:`Batches` starts the computati
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import trio
@@ -23,6 +25,7 @@ from ..qlap.learner import ModelLearner
 from .actor import Actor, to_thread
 from .context import RunContext
 from .inbox import DeltaInbox, RunEnded, StepInbox
+from .rules import batchctx_rule
 
 
 class DeltaOutbox:
@@ -74,25 +77,41 @@ class DeltaOutbox:
             return True
         return False
 
-    def snapshot_state(self, consumers: tuple[str, ...], t: int) -> dict[str, Any]:
-        """What a snapshot at ``t`` keeps of the outbox: the own deltas a consumer restarted
-        from its oldest snapshot may still need (the restarted actor serves them again)."""
-        since = min(t, self.actor.oldest_snapshot(consumers))
-        return {"own": [m.delta for m in self.pending(since)]}
+    def snapshot(self, t: int, save: Callable[[Path], Any], consumers: tuple[str, ...]) -> None:
+        """The actor's snapshot at ``t`` if :meth:`snapshot_now` (``save(dir)`` writes the
+        algorithm's files). It keeps the own deltas a consumer restarted from its oldest
+        snapshot may still need (the restarted actor serves them again)."""
+        if self.snapshot_now(t):
+            since = min(t, self.actor.oldest_snapshot(consumers))
+            self.actor.snapshot(t, save, own=[m.delta for m in self.pending(since)])
 
 
 class Batches:
-    """Starts one actor's batches and keeps their computing times."""
+    """One learning actor's batches: the executor's state each one reads (``batchctx``),
+    its :class:`DeltaOutbox`, and the computing times."""
 
-    def __init__(self, ctx: RunContext) -> None:
+    def __init__(self, actor: Actor, kind: str, n_vars: int) -> None:
+        ctx = self.ctx = actor.ctx
+        # The executor's state before each batch (§6.2.1); the one before the first batch
+        # after a snapshot may be of the snapshot's own step.
+        self.contexts = actor.input("batchctx", window=ctx.replay_keep,
+                                    rule=batchctx_rule(n_vars), first=actor.resume.step)
+        self.out = DeltaOutbox(actor, kind)
         self.inline = ctx.params.batch_lag == 0 and not ctx.realtime
         """L = 0 in lockstep: the batch is computed before the step ends (Algorithm 2)."""
         self.times: list[float] = []
 
-    def start(self, learner: ModelLearner, t: int, kinds: tuple[str, ...],
-              outs: list[DeltaOutbox], nursery: trio.Nursery) -> None:
-        """The batch of ``kinds`` at ``t`` on a copy of ``learner``; each of ``outs`` publishes
-        its part, in their order (dbn first: the order every consumer applies them in)."""
+    async def context(self, t: int) -> BatchContext | None:
+        """The executor's state the batch at ``t`` reads (:func:`context_before`)."""
+        return await context_before(self.contexts, t, self.ctx)
+
+    def start(self, learner: ModelLearner, t: int, outs: list[DeltaOutbox],
+              nursery: trio.Nursery) -> None:
+        """The batch at ``t`` on a copy of ``learner``: lines 6–9, then 10–13 when one of
+        ``outs`` publishes landmarks; each of ``outs`` publishes its part, in their order (dbn
+        first: the order every consumer applies them in)."""
+        landmarks = any(out.kind == "landmarks" for out in outs)
+        kinds = ("dbn", "landmarks") if landmarks else ("dbn",)
         work = learner.batch_copy()
         for out in outs:
             out.reserve(t)

@@ -25,6 +25,14 @@ from .inbox import StepInbox
 from .watchdog import Slot
 
 
+def world_clock(realtime: bool, hz: float, controls: Controls, counter: Any,
+                slot: Slot | None = None) -> LockstepClock:
+    """The world's clock of a run: :class:`RealtimeClock` at ``hz``, or :class:`LockstepClock`."""
+    if realtime:
+        return RealtimeClock(controls, counter, slot, hz)
+    return LockstepClock(controls, counter, slot)
+
+
 class LockstepClock:
     """The world's clock in lockstep (see the module docstring)."""
 
@@ -35,11 +43,22 @@ class LockstepClock:
         self.state = RunControl(speed=speed, default_speed=speed)
         self.paused_s = 0.0
         """Wall seconds spent paused (excluded from the step chain's rate)."""
+        self.wait_s = 0.0
+        """Wall seconds spent waiting for motors."""
         self.pace0: tuple[float, int] = (trio.current_time(), 0)
+        self.loop_t0 = time.perf_counter()
 
     def start(self, step: int) -> None:
         """The first step is ``step``, now."""
         self.rebase(step)
+        self.loop_t0 = time.perf_counter()
+
+    def stop(self) -> dict[str, Any]:
+        """The loop is over: its own time (start-up and pauses excluded: the step chain's rate
+        the benchmarks compare) and the time paused."""
+        loop_s = time.perf_counter() - self.loop_t0
+        return {"loop_s": round(loop_s - self.paused_s, 3), "paused_s": round(self.paused_s, 3),
+                "wait_s": self.wait_s}
 
     def rebase(self, step: int) -> None:
         """The clock restarts at ``step``, now: no catching up."""
@@ -57,7 +76,15 @@ class LockstepClock:
         return True
 
     async def motor(self, inbox: StepInbox, t: int) -> Any:
-        """The motor of step ``t`` (waited for)."""
+        """The motor of step ``t`` (the wait is added to :attr:`wait_s`)."""
+        t0 = time.perf_counter()
+        try:
+            return await self.take_motor(inbox, t)
+        finally:
+            self.wait_s += time.perf_counter() - t0
+
+    async def take_motor(self, inbox: StepInbox, t: int) -> Any:
+        """The motor of step ``t``: waited for."""
         return await inbox.get(t)
 
     def stepped(self) -> None:
@@ -157,7 +184,7 @@ class RealtimeClock(LockstepClock):
         self.tick += 1
         return True
 
-    async def motor(self, inbox: StepInbox, t: int) -> Any:
+    async def take_motor(self, inbox: StepInbox, t: int) -> Any:
         """The motor of step ``t`` if it is back by the next tick, else None (late)."""
         motor = None
         with trio.move_on_at(self.tick0 + self.tick * self.period):

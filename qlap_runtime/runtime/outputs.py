@@ -15,6 +15,7 @@ from typing import Any
 
 from ..errors import CliError
 from ..qlap.checkpoint import atomic_write_json
+from .context import RunContext
 
 MIN_FREE = 32 * 2**20
 """Bytes that must be free under ``--out`` before a run starts."""
@@ -50,13 +51,19 @@ def check_out(out: Path, min_free: int = MIN_FREE) -> None:
                           f"{min_free / 2**20:.0f} MB (room for a checkpoint)")
 
 
-def write_failure_summary(out: Path, **fields: Any) -> None:
-    """``summary.json`` of a run whose world failed: the executor's summary
-    (``actors/executor.json``, when it wrote one) with ``fields`` (the failure) added."""
-    executor = Path(out) / "actors" / "executor.json"
+def write_failure_summary(ctx: RunContext, world_actor: dict[str, Any]) -> None:
+    """``summary.json`` of a run whose world failed (nothing without ``ctx.out``): the
+    executor's summary (``actors/executor.json``, when it wrote one) with the failure and the
+    world actor's result added."""
+    if ctx.out is None:
+        return
+    out = Path(ctx.out)
+    executor = out / "actors" / "executor.json"
     try:
         summary = json.loads(executor.read_text()) if executor.exists() else {}
     except (OSError, ValueError):
         summary = {}
-    summary.update(fields)
-    atomic_write_json(Path(out) / "summary.json", summary)
+    summary.update(placement=ctx.placement, world=ctx.world, seed=ctx.seed,
+                   steps=world_actor["steps"], world_error=world_actor["world_error"],
+                   world_actor=world_actor)
+    atomic_write_json(out / "summary.json", summary)
