@@ -41,7 +41,7 @@ from ..bus.bridge import (
 )
 from ..bus.faults import Faults
 from ..bus.replay import ReplayLog, fetch_replay
-from ..bus.schema import Message, decode, encode
+from ..bus.schema import Message, decode
 from . import snapshot as snap
 from .context import RunContext
 from .controls import Controls
@@ -100,12 +100,12 @@ class Output:
         """Publish ``msg`` and log it under ``step`` (not logged only when an injected fault
         loses it for good, :class:`~qlap_runtime.bus.faults.Faults` ``lost``)."""
         if self.pub.put(msg) or self.pub.faults is None or not self.pub.faults.lost:
-            self.log.append(step, msg)
+            self.log.append(step, msg, self.pub.payload)
 
     def saved(self, since: int | None = None) -> list[list]:
         """The logged ``[step, payload]`` entries from step ``since`` on, for a snapshot
         (:meth:`Actor.restore_log` serves them again)."""
-        return [[s, encode(m).decode()] for s, m in self.log.entries(since)]
+        return [[s, p.decode()] for s, p in self.log.payloads(since)]
 
     def close(self) -> None:
         self.log.close()
@@ -175,7 +175,7 @@ class Actor:
     def restore_log(self, output: Output, entries: list) -> None:
         """Serve again the ``[step, payload]`` entries a snapshot kept of ``output``'s log."""
         for step, payload in entries:
-            output.log.append(int(step), decode(output.key, payload))
+            output.log.append(int(step), decode(output.key, payload), payload.encode())
 
     async def start(self) -> None:
         """Declare the actor alive (every subscription exists) and, when restarted, restore

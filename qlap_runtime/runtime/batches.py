@@ -58,7 +58,7 @@ class DeltaOutbox:
         msg = DeltaMsg.of(self.kind, delta)
         pub = self.output.pub
         if pub.put(msg) or pub.faults is None or not pub.faults.lost:
-            self.log(msg)
+            self.output.log.append(delta.computed_at + self.lag, msg, pub.payload)
         self.in_flight.discard(delta.computed_at)
         self.actor.slot.busy(len(self.in_flight))
 
