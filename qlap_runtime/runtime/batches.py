@@ -112,7 +112,7 @@ class Batches:
         first: the order every consumer applies them in)."""
         landmarks = any(out.kind == "landmarks" for out in outs)
         kinds = ("dbn", "landmarks") if landmarks else ("dbn",)
-        work = learner.batch_copy()
+        work = own_history(learner.batch_copy())
         for out in outs:
             out.reserve(t)
         if self.inline:
@@ -137,6 +137,18 @@ class Batches:
 
     def result(self) -> dict[str, Any]:
         return {"batches": len(self.times), "batch_s": round(sum(self.times), 3)}
+
+
+def own_history(work: ModelLearner) -> ModelLearner:
+    """``work`` with history arrays of its own. ``batch_copy`` shares the live learner's
+    history ring buffers, which the actor keeps writing while a worker thread computes the
+    batch: once they are full (``Params.event_history`` steps) the batch read values of steps
+    after t, as the threads happened to run (core, seed 2, 30,000 steps: the landmarks of
+    step 20,000 differed from run to run)."""
+    # Invariant: a batch at t reads the history up to t, whatever the actor does meanwhile.
+    per = work.perception
+    per.hist_x, per.hist_q = per.hist_x.copy(), per.hist_q.copy()
+    return work
 
 
 async def context_before(contexts: StepInbox, t: int, ctx: RunContext) -> BatchContext | None:
