@@ -8,9 +8,10 @@ queries on ``qlap/<run-id>/replay/<topic>?from=STEP`` — and :func:`fetch_repla
 
 The log keeps each message as the payload its publisher already encoded, copied to its size (a
 core ``qstate`` is about 0.6 kB of JSON against 2.8 kB as Python objects, and a log holds
-thousands of steps of several topics): the step chain pays a deque append, a query is answered with the stored bytes,
-and only the rare readers of the messages themselves (snapshots) decode them again. The query
-callback (a Zenoh thread) reads a copy taken under a lock and never touches actor state.
+thousands of steps of several topics): the step chain pays a deque append and a copy, a query
+is answered with the stored bytes, and only the rare readers of the messages themselves
+(snapshots) decode them again. The query callback (a Zenoh thread) reads a copy taken under a
+lock and never touches actor state.
 """
 
 from __future__ import annotations
