@@ -79,16 +79,9 @@ class LearnerActor(ActorBase):
         """This actor's batch at ``t``, if one starts there. ``guest`` (the landmarks actor on
         this learner, at its batch step): its lines 10–13 on the same copy, right after these
         lines 6–9, as the standalone landmarks actor computes them on its identical copy."""
-        ctx = self.ctx
-        if self._msg.rejected or self.kind not in batch_kinds(ctx.params, t):
-            return
-        bc = await self.batches.context(t)
-        if guest is not None:                   # its own copy of the same context
-            await guest.batches.context(t)
-        if bc is not None:
-            apply_batch_context(self.learner, bc)
-        outs = [self.batches.out] if guest is None else [self.batches.out, guest.batches.out]
-        self.batches.start(self.learner, t, outs, self.nursery)
+        if not self._msg.rejected and self.kind in batch_kinds(self.ctx.params, t):
+            await self.batches.begin(t, self.learner, self.nursery, apply_batch_context,
+                                     None if guest is None else guest.batches)
 
     async def settle(self, t: int) -> None:
         """The deltas due at ``t`` (applied unless a guest), the checkpoint's statistics part

@@ -105,6 +105,21 @@ class Batches:
         """The executor's state the batch at ``t`` reads (:func:`context_before`)."""
         return await context_before(self.contexts, t, self.ctx)
 
+    async def begin(self, t: int, learner: ModelLearner, nursery: trio.Nursery,
+                    prepare: Callable[[ModelLearner, BatchContext], None],
+                    guest: Batches | None = None) -> None:
+        """The batch at ``t``: the executor's state it reads (``prepare(learner, context)``
+        gives it to ``learner``), then :meth:`start`. ``guest``: the batches of the landmarks
+        actor hosted on the same learner (docs/decisions.md 54), which take their part of the
+        same computation and their own copy of the same context."""
+        context = await self.context(t)
+        if guest is not None:
+            await guest.context(t)
+        if context is not None:
+            prepare(learner, context)
+        outs = [self.out] if guest is None else [self.out, guest.out]
+        self.start(learner, t, outs, nursery)
+
     def start(self, learner: ModelLearner, t: int, outs: list[DeltaOutbox],
               nursery: trio.Nursery) -> None:
         """The batch at ``t`` on a copy of ``learner``: lines 6–9, then 10–13 when one of
