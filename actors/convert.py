@@ -1,10 +1,13 @@
-"""Bus messages ↔ the algorithm's objects: ``qstate`` ↔ :class:`Percept`, the executor's
-state a batch reads (``batchctx``, §6.2.1) and the agent a plan compilation reads
-(``planreq``, Algorithm 2 line 15)."""
+"""Bus messages ↔ the algorithm's objects: the world's values as ``sense`` carries them,
+``qstate`` ↔ :class:`Percept`, landmark deltas on perception, the world's view, the executor's
+state a batch reads (``batchctx``, §6.2.1) and the agent a plan compilation reads (``planreq``,
+Algorithm 2 line 15)."""
 
 from __future__ import annotations
 
 import base64
+import math
+import sys
 import tempfile
 import threading
 from pathlib import Path
@@ -12,18 +15,94 @@ from typing import Any
 
 import numpy as np
 
-from qlap_runtime.bus.schema import BatchContext, PlanRequest, QState
+from qlap_runtime.bus.schema import BatchContext, PlanRequest, QState, Sense, WorldView
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import load_agent, save_agent
-from qlap_runtime.qlap.delta import Delta
-from qlap_runtime.qlap.perception import Percept
+from qlap_runtime.qlap.delta import AddLandmark, Delta
+from qlap_runtime.qlap.perception import MAX_ABS_VALUE, InvalidObservation, Percept, Perception
 from qlap_runtime.qlap.plan_delta import PlanDelta
+from qlap_runtime.qlap.quantity import Landmark
 from qlap_runtime.qlap.variables import Event, VariableTable
 
 REQUEST_FILES = ("agent.json", "agent.npz", "learner.json", "learner.npz")
 """The checkpoint files a ``planreq`` carries (``save_agent``'s, docs/checkpoint.md)."""
 SCRATCH = "/dev/shm" if Path("/dev/shm").is_dir() else None
 """Where a request's files pass through (memory where the system has it)."""
+
+
+def sense_values(values: dict, available_from: dict[str, int], t: int) -> tuple[dict, bool]:
+    """``values`` as ``sense(t)`` can carry them, and whether the agent rejects them (a NaN,
+    ±inf or |x| > ``MAX_ABS_VALUE`` of an available variable). A NaN is left out, ±inf becomes
+    ±``sys.float_info.max``: the perception actor then sees what the synchronous agent sees."""
+    bad = False
+    out = values
+    for k, v in values.items():
+        try:
+            if abs(v) <= MAX_ABS_VALUE:     # False on NaN: the fast path of every step
+                continue
+            fv = float(v)
+        except (TypeError, ValueError):
+            continue                        # not a number: the perception actor names it
+        if out is values:
+            out = dict(values)
+        if math.isnan(fv):
+            del out[k]
+            bad = bad or t >= available_from.get(k, 0)
+        else:
+            if math.isinf(fv):
+                out[k] = math.copysign(sys.float_info.max, fv)
+            bad = True
+    return out, bad
+
+
+class SenseCodec:
+    """``sense(t)`` messages of one world (:func:`sense_values`), counting those the agent
+    rejects."""
+
+    def __init__(self, variables: Any) -> None:
+        self.available = {v.name: int(getattr(v, "available_from", 0) or 0) for v in variables}
+        self.rejected = 0
+
+    def message(self, t: int, obs: dict, applied: dict, discontinuity: bool) -> Sense:
+        values, bad = sense_values({**obs, **applied}, self.available, t)
+        self.rejected += bad
+        return Sense(t, values, discontinuity)
+
+
+def rejection_as_sent(per: Perception, t: int, msg: Any,
+                      exc: InvalidObservation) -> InvalidObservation:
+    """The reason the synchronous agent gives for rejecting ``sense(t)``: ±inf travels as ±float
+    max (:func:`sense_values`), so the rejection is checked again with them restored (the state
+    is unchanged by a rejected observation)."""
+    x = per.vector(msg.values)
+    huge = np.abs(x) == sys.float_info.max
+    if not huge.any():
+        return exc
+    x[huge] = np.copysign(np.inf, x[huge])
+    try:
+        per.perceive(t, x, copy=False, discontinuity=msg.discontinuity)
+    except InvalidObservation as again:
+        return again
+    return exc
+
+
+def apply_landmark_ops(per: Perception, deltas: list) -> None:
+    """Mirror the learner's landmark additions (the only ops that change perception)."""
+    for delta in deltas:
+        for op in delta.ops:
+            if isinstance(op, AddLandmark):
+                space = per.spaces[int(op.var)]
+                if space.landmarks and space.interval_of_range(float(op.lb),
+                                                               float(op.ub)) is None:
+                    continue                     # the learner skips it too
+                per.add_landmark(int(op.var), Landmark(float(op.lb), float(op.ub), int(op.step),
+                                                       op.source))
+
+
+def world_view(world: Any, name: str, t: int, obs: dict, applied: dict) -> WorldView:
+    """The UI's world panel: the world drawn as text, its finite values and the motors."""
+    return WorldView(t, str(getattr(world, "name", name)), world.render_text(44, 14),
+                     {k: float(v) for k, v in obs.items() if math.isfinite(v)}, applied, {})
 
 
 class QStateCodec:

@@ -61,3 +61,15 @@ def restore_world(world: Any, checkpoint: Path) -> dict[str, float]:
     if state is None:
         raise CheckpointError(f"{where}: missing (the world's state is needed to resume)")
     return restore(world, state, where)
+
+
+def start_world(world: Any, ctx: RunContext) -> tuple[dict[str, float], dict[str, float]]:
+    """The world actor's first observation and the motor values it applies until the first
+    motor arrives: the checkpoint's (a resumed run), or a reset with every motor at 0."""
+    applied = {v.name: 0.0 for v in world.variables
+               if getattr(v.kind, "value", v.kind) == "motor"}
+    if ctx.resume_checkpoint is None:
+        return world.reset(seed=ctx.seed), applied
+    obs = restore_world(world, ctx.resume_checkpoint)
+    applied.update(applied_motors(ctx.resume_checkpoint))
+    return obs, applied

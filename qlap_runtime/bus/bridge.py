@@ -407,6 +407,8 @@ class Publisher:
         self._local: tuple[int, list[TrioSubscriber], bytes] = (-1, [], b"")
         """The routes' version, this key's local subscribers then, and their tag."""
         self.sent = 0
+        self.payload = b""
+        """The encoding of the last message :meth:`put` (a replay log keeps it)."""
         self.faults = faults.injector(topic, tag) if faults is not None else None
         """Injected drops and delays (tests and the chaos harness only; :mod:`.faults`)."""
 
@@ -418,7 +420,7 @@ class Publisher:
             raise TypeError(f"{self.key} carries {self.msg_type.__name__}, "
                             f"not {type(msg).__name__}")
         self.sent += 1
-        payload = encode(msg)
+        self.payload = payload = encode(msg)
         if self.faults is None:
             self._send(payload, msg)
             return True

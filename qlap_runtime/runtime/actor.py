@@ -32,10 +32,16 @@ from typing import Any, Self
 import trio
 
 from ..bus import keys
-from ..bus.bridge import Publisher, RejectionCounter, TrioSubscriber, declare_alive
+from ..bus.bridge import (
+    Publisher,
+    RejectionCounter,
+    TrioSubscriber,
+    alive_actors,
+    declare_alive,
+)
 from ..bus.faults import Faults
 from ..bus.replay import ReplayLog, fetch_replay
-from ..bus.schema import Message
+from ..bus.schema import Message, decode
 from . import snapshot as snap
 from .context import RunContext
 from .controls import Controls
@@ -66,13 +72,16 @@ class Resume:
     state: dict[str, Any] = field(default_factory=dict)
     """The actor-specific values of the snapshot (see :mod:`~qlap_runtime.runtime.snapshot`)."""
     restarted: bool = False
+    checkpoint: Path | None = None
+    """The resumed run's checkpoint the actor starts from when it has no snapshot of its own
+    (``ctx.resume_checkpoint``; docs/decisions.md 50)."""
 
     @classmethod
     def of(cls, ctx: RunContext, actor: str) -> Resume:
         if not ctx.restarted:
-            return cls(ctx.start - 1)
+            return cls(ctx.start - 1, checkpoint=ctx.resume_checkpoint)
         if ctx.resume_from is None:
-            return cls(ctx.start - 1, restarted=True)
+            return cls(ctx.start - 1, restarted=True, checkpoint=ctx.resume_checkpoint)
         step, state = snap.read_snapshot(ctx.resume_from, actor)
         log.info("%s: resuming from the snapshot at step %d", actor, step)
         return cls(step, ctx.resume_from, state, True)
@@ -91,7 +100,12 @@ class Output:
         """Publish ``msg`` and log it under ``step`` (not logged only when an injected fault
         loses it for good, :class:`~qlap_runtime.bus.faults.Faults` ``lost``)."""
         if self.pub.put(msg) or self.pub.faults is None or not self.pub.faults.lost:
-            self.log.append(step, msg)
+            self.log.append(step, msg, self.pub.payload)
+
+    def saved(self, since: int | None = None) -> list[list]:
+        """The logged ``[step, payload]`` entries from step ``since`` on, for a snapshot
+        (:meth:`Actor.restore_log` serves them again)."""
+        return [[s, p.decode()] for s, p in self.log.payloads(since)]
 
     def close(self) -> None:
         self.log.close()
@@ -120,16 +134,18 @@ class Actor:
 
     # ------------------------------------------------------------------------- set-up
     def input(self, topic: str, *, window: int | None, rule: Rule | None = None,
-              first: int | None = None) -> StepInbox:
+              first: int | None = None, end: bool = True) -> StepInbox:
         """A step inbox of ``topic`` from step ``first`` (default: the step after the resume
-        point); ``window``: the lockstep window (ignored under the realtime clock)."""
+        point); ``window``: the lockstep window (ignored under the realtime clock); ``end``:
+        the world's end marker ends a wait for a later step (not for the world itself)."""
         sub = self._stack.enter_context(
             TrioSubscriber(self.session, keys.key(self.ctx.run_id, topic), counter=self.counter))
         # In lockstep a step that does not come in time is asked for again from the writer's
         # replay log (a lost message; a restarted writer or consumer).
         refill = None if self.ctx.realtime else self._refill(topic)
         inbox = StepInbox(sub, first=self.resume.step + 1 if first is None else first,
-                          refill=refill, end=self.controls, slot=self.slot, topic=topic,
+                          refill=refill, end=self.controls if end else None, slot=self.slot,
+                          topic=topic,
                           counter=self.counter, key=keys.key(self.ctx.run_id, topic),
                           window=None if self.ctx.realtime else window, rule=rule)
         self._inputs.append((inbox, topic))
@@ -158,10 +174,8 @@ class Actor:
 
     def restore_log(self, output: Output, entries: list) -> None:
         """Serve again the ``[step, payload]`` entries a snapshot kept of ``output``'s log."""
-        from ..bus.schema import decode
-
         for step, payload in entries:
-            output.log.append(int(step), decode(output.key, payload))
+            output.log.append(int(step), decode(output.key, payload), payload.encode())
 
     async def start(self) -> None:
         """Declare the actor alive (every subscription exists) and, when restarted, restore
@@ -205,12 +219,26 @@ class Actor:
         wanted = set(consumers) - {self.name}
         if self.ctx.realtime or not self._outputs or not wanted:
             return
-        from ..bus.bridge import alive_actors
-
         with trio.move_on_after(limit_s):
             # Polled: the tokens are another process's; a subscription's history can miss
             # a token that goes while it is answered.
             while await alive_actors(self.session, self.ctx.run_id) & wanted:  # noqa: ASYNC110
+                await trio.sleep(LINGER_POLL_S)
+
+    async def finish(self, consumers: tuple[str, ...], **values: Any) -> dict[str, Any]:
+        """After the last step: off the board, :meth:`linger` for ``consumers``, and the
+        actor's :meth:`result` with ``values``."""
+        self.slot.finished()
+        await self.linger(consumers)
+        return self.result(**values)
+
+    async def others_ended(self, limit_s: float) -> None:
+        """Wait (at most ``limit_s``) until every other actor of the run has withdrawn its
+        token: their outputs are written."""
+        with trio.move_on_after(limit_s):
+            # Polled (a subscription's history can miss a token that goes while it answers).
+            others = {self.name}
+            while (await alive_actors(self.session, self.ctx.run_id)) - others:  # noqa: ASYNC110
                 await trio.sleep(LINGER_POLL_S)
 
     # ------------------------------------------------------------------------- the loop
@@ -297,9 +325,36 @@ class Actor:
 
 class ActorBase:
     """Base of an actor's class (``actors/*``): it owns an :class:`Actor` and closes it when it
-    is closed itself, also as a context manager."""
+    is closed itself, also as a context manager. A subclass gives :meth:`step` (receive →
+    algorithm → publish) and :meth:`finish`; :meth:`run` is its loop as a task of its own."""
 
     actor: Actor
+    result: dict[str, Any] | None = None
+    """The actor's result, once :meth:`finish` has run."""
+    nursery: trio.Nursery
+    """Where the actor's background work (a batch in a worker thread) runs during :meth:`run`;
+    the loop ends when that work is done."""
+
+    async def start(self) -> None:
+        """Alive (every subscription exists); a restarted actor fetches what it missed."""
+        await self.actor.start()
+
+    async def step(self, t: int) -> bool:
+        """One step of the loop; False when the run ended before step ``t``."""
+        raise NotImplementedError
+
+    async def finish(self) -> dict[str, Any]:
+        """After the last step: the actor's result."""
+        raise NotImplementedError
+
+    async def run(self) -> dict[str, Any]:
+        """The actor as a task of its own: :meth:`start`, every step, :meth:`finish`."""
+        await self.start()
+        async with trio.open_nursery() as self.nursery:
+            for t in self.actor.steps():
+                if not await self.step(t):
+                    break
+        return await self.finish()
 
     def close(self) -> None:
         self.actor.close()

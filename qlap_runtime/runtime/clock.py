@@ -15,14 +15,25 @@ Time is trio's, so the tests run them on ``trio.testing.MockClock``.
 
 from __future__ import annotations
 
+import gc
+import sys
 import time
 from typing import Any
 
 import trio
+from trio.testing import MockClock
 
 from .controls import ControlError, Controls, RunControl
 from .inbox import StepInbox
 from .watchdog import Slot
+
+
+def world_clock(realtime: bool, hz: float, controls: Controls, counter: Any,
+                slot: Slot | None = None) -> LockstepClock:
+    """The world's clock of a run: :class:`RealtimeClock` at ``hz``, or :class:`LockstepClock`."""
+    if realtime:
+        return RealtimeClock(controls, counter, slot, hz)
+    return LockstepClock(controls, counter, slot)
 
 
 class LockstepClock:
@@ -35,11 +46,22 @@ class LockstepClock:
         self.state = RunControl(speed=speed, default_speed=speed)
         self.paused_s = 0.0
         """Wall seconds spent paused (excluded from the step chain's rate)."""
+        self.wait_s = 0.0
+        """Wall seconds spent waiting for motors."""
         self.pace0: tuple[float, int] = (trio.current_time(), 0)
+        self.loop_t0 = time.perf_counter()
 
     def start(self, step: int) -> None:
         """The first step is ``step``, now."""
         self.rebase(step)
+        self.loop_t0 = time.perf_counter()
+
+    def stop(self) -> dict[str, Any]:
+        """The loop is over: its own time (start-up and pauses excluded: the step chain's rate
+        the benchmarks compare) and the time paused."""
+        loop_s = time.perf_counter() - self.loop_t0
+        return {"loop_s": round(loop_s - self.paused_s, 3), "paused_s": round(self.paused_s, 3),
+                "wait_s": self.wait_s}
 
     def rebase(self, step: int) -> None:
         """The clock restarts at ``step``, now: no catching up."""
@@ -57,7 +79,15 @@ class LockstepClock:
         return True
 
     async def motor(self, inbox: StepInbox, t: int) -> Any:
-        """The motor of step ``t`` (waited for)."""
+        """The motor of step ``t`` (the wait is added to :attr:`wait_s`)."""
+        t0 = time.perf_counter()
+        try:
+            return await self.take_motor(inbox, t)
+        finally:
+            self.wait_s += time.perf_counter() - t0
+
+    async def take_motor(self, inbox: StepInbox, t: int) -> Any:
+        """The motor of step ``t``: waited for."""
         return await inbox.get(t)
 
     def stepped(self) -> None:
@@ -117,6 +147,30 @@ class LockstepClock:
         return {}
 
 
+PRECISE_S = 0.0012
+"""The last part of a tick's wait is a plain sleep of the thread (:func:`time.sleep`, to the
+microsecond) instead of trio's: the I/O wait under trio's sleep takes whole milliseconds,
+rounded up, which made a tick 0.7 ms late on average and up to 1 ms."""
+SWITCH_INTERVAL_S = 0.0005
+"""The GIL switch interval under the realtime clock (Python's default is 5 ms)."""
+
+
+async def sleep_until_precisely(deadline: float) -> None:
+    """Sleep until trio time ``deadline``: with trio until :data:`PRECISE_S` before it (other
+    tasks run), then the rest with the thread blocked (the GIL released), returning without a
+    checkpoint. Under ``trio.testing.MockClock`` the last part is trio's too (the mock clock
+    jumps to it)."""
+    await trio.sleep_until(deadline - PRECISE_S)
+    if isinstance(trio.lowlevel.current_clock(), MockClock):
+        await trio.sleep_until(deadline)
+        return
+    rest = deadline - trio.current_time()
+    if rest > 0:
+        # Blocking on purpose, for at most PRECISE_S: a checkpoint after it would let other
+        # tasks run first.
+        time.sleep(rest)  # noqa: ASYNC251
+
+
 class RealtimeClock(LockstepClock):
     """The world's clock at a fixed tick rate (see the module docstring)."""
 
@@ -129,6 +183,25 @@ class RealtimeClock(LockstepClock):
         self.missed = 0
         self.late = 0
         self.lateness: list[float] = []
+        self.switch_interval = sys.getswitchinterval()
+
+    def start(self, step: int) -> None:
+        """The first tick is now. What start-up allocated is frozen (never scanned again by a
+        full garbage collection, which took 31–37 ms on core's embedded placement: three
+        missed ticks), and a thread that holds the GIL gives it up after
+        :data:`SWITCH_INTERVAL_S` when the clock's thread wants it."""
+        gc.collect()
+        gc.freeze()
+        self.switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(self.switch_interval, SWITCH_INTERVAL_S))
+        super().start(step)
+
+    def stop(self) -> dict[str, Any]:
+        """The loop is over: start-up's objects may be collected again, the GIL switch
+        interval is Python's again."""
+        gc.unfreeze()
+        sys.setswitchinterval(self.switch_interval)
+        return super().stop()
 
     def rebase(self, step: int) -> None:
         super().rebase(step)
@@ -152,12 +225,12 @@ class RealtimeClock(LockstepClock):
             self.missed += skipped
             self.tick += skipped
             deadline = self.tick0 + self.tick * self.period
-        await trio.sleep_until(deadline)
+        await sleep_until_precisely(deadline)
         self.lateness.append(trio.current_time() - deadline)
         self.tick += 1
         return True
 
-    async def motor(self, inbox: StepInbox, t: int) -> Any:
+    async def take_motor(self, inbox: StepInbox, t: int) -> Any:
         """The motor of step ``t`` if it is back by the next tick, else None (late)."""
         motor = None
         with trio.move_on_at(self.tick0 + self.tick * self.period):

@@ -7,11 +7,15 @@ more, so that a run does not learn for hours and then lose its knowledge at the 
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
+from typing import Any
 
 from ..errors import CliError
+from ..qlap.checkpoint import atomic_write_json
+from .context import RunContext
 
 MIN_FREE = 32 * 2**20
 """Bytes that must be free under ``--out`` before a run starts."""
@@ -45,3 +49,21 @@ def check_out(out: Path, min_free: int = MIN_FREE) -> None:
     if free < min_free:
         raise OutputError(f"--out {out}: {free / 2**20:.1f} MB free, a run needs at least "
                           f"{min_free / 2**20:.0f} MB (room for a checkpoint)")
+
+
+def write_failure_summary(ctx: RunContext, world_actor: dict[str, Any]) -> None:
+    """``summary.json`` of a run whose world failed (nothing without ``ctx.out``): the
+    executor's summary (``actors/executor.json``, when it wrote one) with the failure and the
+    world actor's result added."""
+    if ctx.out is None:
+        return
+    out = Path(ctx.out)
+    executor = out / "actors" / "executor.json"
+    try:
+        summary = json.loads(executor.read_text()) if executor.exists() else {}
+    except (OSError, ValueError):
+        summary = {}
+    summary.update(placement=ctx.placement, world=ctx.world, seed=ctx.seed,
+                   steps=world_actor["steps"], world_error=world_actor["world_error"],
+                   world_actor=world_actor)
+    atomic_write_json(out / "summary.json", summary)

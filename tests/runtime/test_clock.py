@@ -124,3 +124,27 @@ async def test_realtime_ticks_counts_missed_ticks_and_late_motors(embedded, cloc
         s0 = trio.current_time()
         assert await rt.before(5) and await rt.before(6)
         assert trio.current_time() - s0 == pytest.approx(0.05)
+
+
+async def test_the_realtime_loop_freezes_start_up_objects_and_shortens_the_gil_switch(
+        embedded, clock):
+    import gc
+    import sys
+
+    counter = RejectionCounter("world")
+    before = sys.getswitchinterval()
+    with Controls(embedded, CTX, counter) as controls:
+        rt = RealtimeClock(controls, counter, hz=100.0)
+        rt.start(0)
+        try:
+            assert gc.get_freeze_count() > 0
+            assert sys.getswitchinterval() <= 0.0005
+            t0 = trio.current_time()
+            assert await rt.before(0) and await rt.before(1)
+            assert trio.current_time() == pytest.approx(t0 + 0.01)  # to the tick, mock time
+            assert rt.lateness == [0.0, 0.0]
+        finally:
+            stats = rt.stop()
+        assert gc.get_freeze_count() == 0
+        assert sys.getswitchinterval() == before
+        assert set(stats) == {"loop_s", "paused_s", "wait_s"}
