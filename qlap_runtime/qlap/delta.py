@@ -34,7 +34,7 @@ import math
 import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 from .dbn import CHANGE, MAGNITUDE
 from .variables import Event
@@ -114,6 +114,22 @@ def vars_field(op: str, field: str, v: Any) -> tuple[int, ...]:
 # ---------------------------------------------------------------------------------------------
 # The operations
 # ---------------------------------------------------------------------------------------------
+
+
+class OneIdOp:
+    """An operation with one integer field, ``FIELD``: ``[NAME, id]`` on the wire (DBN and plan
+    deltas alike)."""
+
+    NAME: ClassVar[str]
+    FIELD: ClassVar[str]
+
+    def to_json(self) -> list[Any]:
+        return [self.NAME, getattr(self, self.FIELD)]
+
+    @classmethod
+    def from_json(cls, item: Any) -> Self:
+        _, v = op_items(cls.NAME, item, 2)
+        return cls(int_field(cls.NAME, cls.FIELD, v))  # type: ignore[call-arg]
 @dataclass(frozen=True)
 class Refresh:
     """Refresh the sticky "sufficiently reliable" flags from the CPTs (§4.2.2)."""
@@ -196,19 +212,12 @@ class SetContext:
 
 
 @dataclass(frozen=True)
-class DeleteDBN:
+class DeleteDBN(OneIdOp):
     """Delete a DBN (§6.2.1 item 4, §6.2.3)."""
 
     dbn_id: int
     NAME: ClassVar[str] = "delete_dbn"
-
-    def to_json(self) -> list[Any]:
-        return [self.NAME, self.dbn_id]
-
-    @classmethod
-    def from_json(cls, item: Any) -> DeleteDBN:
-        _, dbn_id = op_items(cls.NAME, item, 2)
-        return cls(int_field(cls.NAME, "dbn_id", dbn_id))
+    FIELD: ClassVar[str] = "dbn_id"
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .delta import int_field, op_items, vars_field
+from .delta import OneIdOp, int_field, op_items, vars_field
 from .mdp import NOT_APPLICABLE
 
 
@@ -68,20 +68,13 @@ def _q_or_none(op: str, d: Any) -> np.ndarray | None:
 
 
 @dataclass(frozen=True)
-class RemovePlan:
+class RemovePlan(OneIdOp):
     """Remove plan ``plan_id`` (its DBN is gone, rel(o) fell too low, or another plan takes
     its slot: §6.2.2); a frame running it ends."""
 
     plan_id: int
     NAME: ClassVar[str] = "remove_plan"
-
-    def to_json(self) -> list[Any]:
-        return [self.NAME, self.plan_id]
-
-    @classmethod
-    def from_json(cls, item: Any) -> RemovePlan:
-        _, pid = op_items(cls.NAME, item, 2)
-        return cls(int_field(cls.NAME, "plan_id", pid))
+    FIELD: ClassVar[str] = "plan_id"
 
 
 @dataclass(frozen=True)
@@ -130,37 +123,23 @@ class AddPlan:
 
 
 @dataclass(frozen=True)
-class SkipPlan:
+class SkipPlan(OneIdOp):
     """DBN ``dbn_id`` qualified for a plan whose Q-table would exceed
     ``Params.max_plan_entries`` (counted as ``plans_too_large``, docs/decisions.md 23)."""
 
     dbn_id: int
     NAME: ClassVar[str] = "skip_plan"
-
-    def to_json(self) -> list[Any]:
-        return [self.NAME, self.dbn_id]
-
-    @classmethod
-    def from_json(cls, item: Any) -> SkipPlan:
-        _, dbn_id = op_items(cls.NAME, item, 2)
-        return cls(int_field(cls.NAME, "dbn_id", dbn_id))
+    FIELD: ClassVar[str] = "dbn_id"
 
 
 @dataclass(frozen=True)
-class DropContext:
+class DropContext(OneIdOp):
     """Plan ``plan_id`` outgrew ``Params.max_plan_entries``: it gives up C_o (§5.4.2,
     docs/decisions.md 23)."""
 
     plan_id: int
     NAME: ClassVar[str] = "drop_context"
-
-    def to_json(self) -> list[Any]:
-        return [self.NAME, self.plan_id]
-
-    @classmethod
-    def from_json(cls, item: Any) -> DropContext:
-        _, pid = op_items(cls.NAME, item, 2)
-        return cls(int_field(cls.NAME, "plan_id", pid))
+    FIELD: ClassVar[str] = "plan_id"
 
 
 @dataclass(frozen=True, eq=False)
