@@ -20,7 +20,7 @@ from typing import Any
 
 import trio
 
-from qlap_runtime.bus.schema import PlanRequest, encode
+from qlap_runtime.bus.schema import PlanRequest
 from qlap_runtime.metrics import METRICS_FILE, MetricsLog, summary_of
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import (
@@ -128,7 +128,7 @@ class BatchLinks:
 
     def logs(self) -> dict[str, list]:
         """The replay logs a snapshot keeps."""
-        return {name: [[s, encode(m).decode()] for s, m in out.log.entries()]
+        return {name: out.saved()
                 for name, out in (("batchctx", self.contexts), ("planreq", self.requests))}
 
 

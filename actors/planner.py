@@ -17,7 +17,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from qlap_runtime.bus.schema import PlanDeltaMsg, encode
+from qlap_runtime.bus.schema import PlanDeltaMsg
 from qlap_runtime.qlap.variables import VariableTable
 from qlap_runtime.runtime.actor import Actor, ActorBase, to_thread
 from qlap_runtime.runtime.context import RunContext, world_variables
@@ -90,8 +90,7 @@ class PlannerActor(ActorBase):
         if self.ctx.snapshots is None or t - 1 <= self.actor.resume.step:
             return
         since = self.actor.oldest_snapshot(("executor",)) - self.ctx.params.batch_lag
-        self.actor.snapshot(t - 1, None, own=[[s, encode(m).decode()]
-                                             for s, m in self.out.log.entries(since + 1)])
+        self.actor.snapshot(t - 1, None, own=self.out.saved(since + 1))
 
     async def finish(self) -> dict[str, Any]:
         """After the last batch: stay until the executor is done (it may ask again)."""
