@@ -239,7 +239,8 @@ def test_resume_never_writes_over_the_source_run(capsys, tmp_path):
 
 # ------------------------------------------------------------------------ process groups
 @pytest.mark.parametrize("groups", ["bogus", "world+perception,executor",
-                                    "world+perception+executor+planner,contingency"])
+                                    "world+perception+executor+planner,contingency",
+                                    "world+perception+executor,planner+contingency+landmarks"])
 def test_a_wrong_groups_value_is_one_line_naming_it(capsys, tmp_path, groups):
     code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "processes",
                         "--world", "core2d", "--steps", "10", "--groups", groups,

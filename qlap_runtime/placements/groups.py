@@ -14,7 +14,9 @@ Layouts by name: ``two`` (the default) — the step chain and the planner in one
 learners in a second, so that only ``qstate``, ``batchctx`` and the deltas cross processes and
 the learners' work runs on the other core; ``each`` — one process per actor (any actor but the
 world can then be restarted alone). A layout can also be spelled out: groups separated by
-``,``, the actors of a group by ``+`` (``world+perception+executor+planner,contingency+landmarks``).
+``,``, the actors of a group by ``+`` (``world+perception+executor+planner,contingency+landmarks``);
+a group of several actors holds the world (it is never restarted) or is the learners' pair,
+the only actors that snapshot at the same steps, which a restarted group needs.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from __future__ import annotations
 ACTORS = ("perception", "contingency", "landmarks", "planner", "executor", "world")
 """Every actor of a run; the world starts last (it waits for the others)."""
 
+LEARNERS = ("contingency", "landmarks")
 Layout = tuple[tuple[str, ...], ...]
 
 LAYOUTS: dict[str, Layout] = {
@@ -46,9 +49,16 @@ def parse_groups(spec: str | Layout) -> Layout:
         layout = tuple(tuple(a.strip() for a in g.split("+")) for g in spec.split(","))
     names = [a for group in layout for a in group]
     unknown = sorted(set(names) - set(ACTORS))
-    if unknown or sorted(names) != sorted(ACTORS) or any(not g for g in layout):
-        what = f"unknown actor {unknown[0]!r}" if unknown else \
-            "each of the six actors must be in exactly one group"
+    what = None
+    if unknown:
+        what = f"unknown actor {unknown[0]!r}"
+    elif sorted(names) != sorted(ACTORS) or any(not g for g in layout):
+        what = "each of the six actors must be in exactly one group"
+    elif any(len(g) > 1 and "world" not in g and set(g) != set(LEARNERS) for g in layout):
+        # A restartable group resumes all its actors from one snapshot step: only the pair
+        # snapshots at the same steps (and planreq in memory cannot be replayed).
+        what = "a group of several actors must hold the world or be contingency+landmarks"
+    if what is not None:
         raise GroupsError(f"unknown process groups {_show(spec)!r}: {what}; use "
                           f"{' or '.join(LAYOUTS)}, or groups of actors joined by '+' and "
                           f"separated by ',' ({', '.join(ACTORS)})")

@@ -31,13 +31,13 @@ from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
 from ..runtime.outputs import check_out
 from ..runtime.supervisor import Supervisor, group_name
-from .groups import ACTORS, DEFAULT_GROUPS, Layout, parse_groups
+from .groups import ACTORS, DEFAULT_GROUPS, LEARNERS, Layout, parse_groups
 
 CHAIN = ("world", "perception", "executor")
 """The step chain: when its actors share a process, one task runs their steps in turn (the
 world's hosts the others', ``actors.world.run``), so a step needs no wake-up between them."""
-LEARNERS = ("contingency", "landmarks")
-"""When they share a process, both run in one task on one learner (``learning.run_pair``)."""
+# LEARNERS (.groups): when they share a process, both run in one task on one learner
+# (``learning.run_pair``).
 
 
 def _units(names: tuple[str, ...], ctx: Any) -> list[str]:
