@@ -116,7 +116,7 @@ def test_a_dead_world_stops_the_run_with_a_clear_error(tmp_path):
     ctx = context(tmp_path, BASE, 7, "t-fault-world")
 
     def kill_world(sup: Supervisor) -> None:
-        under_way = latest_snapshot(sup.snapshot_dir, "executor") is not None
+        under_way = sup.board.slot("world").data[0] >= SNAPSHOT_EVERY
         world = sup.process_of("world")
         if under_way and world.is_alive():
             os.kill(world.pid, signal.SIGKILL)
