@@ -684,8 +684,13 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     ctx = ctx.with_(out=out)
     resumed = f", from step {ctx.start} of {ctx.resume_checkpoint}" \
         if ctx.resume_checkpoint is not None else ""
+    from .placements.groups import DEFAULT_GROUPS
+
+    layout = f" (groups {args.groups or DEFAULT_GROUPS})" if args.placement == "processes" \
+        else ""
     print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
-          f"{args.placement}, {args.clock}, lag {params.batch_lag}{resumed}", file=sys.stderr)
+          f"{args.placement}{layout}, {args.clock}, lag {params.batch_lag}{resumed}",
+          file=sys.stderr)
     from .bus.auth import CREDENTIALS_FILE
 
     credentials = out / CREDENTIALS_FILE
