@@ -115,8 +115,10 @@ class BatchLinks:
         """After observing ``qstate(t)``, before the deltas due at t: the state the batch at
         t copies, which the planner compiles."""
         if t in self.plans.asked:
+            # The planner in this process (RunContext.groups): the agent in memory.
             self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t)
-                              if self.ctx.placement == "embedded" else plan_request(agent, t))
+                              if self.ctx.together("executor", "planner")
+                              else plan_request(agent, t))
 
     def decided(self, agent: Agent, t: int) -> None:
         """Before ``motor(t)``: the batch at t + 1 reads this state (§6.2.1); after the last

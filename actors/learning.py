@@ -4,7 +4,7 @@ Both keep a :class:`~qlap_runtime.qlap.learner.ModelLearner` from the ``qstate``
 every delta at its step boundary: replicas of the synchronous loop's learner. ``contingency``
 computes lines 6–9 at every DBN batch (``delta/dbn``); ``landmarks`` computes lines 6–9 on its
 own copy, then 10–13 (``delta/landmarks``). How a batch runs is :mod:`~qlap_runtime.runtime.
-batches`'; in the embedded placement both run in one task on one learner (:func:`run_pair`).
+batches`'; when they share a process both run in one task on one learner (:func:`run_pair`).
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ class LearnerActor(ActorBase):
                  shared: ModelLearner | None = None) -> None:
         if role not in ROLES:
             raise ValueError(f"unknown learning role {role!r}; expected {sorted(ROLES)}")
+        ctx = ctx.for_actor(role)                       # its own snapshot in a group
         self.ctx, self.role, self.kind, self.guest = ctx, role, ROLES[role], shared is not None
         self.actor = actor = Actor(session, ctx, role)
         self.learner = shared if shared is not None else start_learner(ctx, actor.resume)
@@ -83,9 +84,11 @@ class LearnerActor(ActorBase):
             await self.batches.begin(t, self.learner, self.nursery, apply_batch_context,
                                      None if guest is None else guest.batches)
 
-    async def settle(self, t: int) -> None:
+    async def settle(self, t: int, guest: LearnerActor | None = None) -> None:
         """The deltas due at ``t`` (applied unless a guest), the checkpoint's statistics part
-        and the snapshot."""
+        and the snapshot. A guest writes its snapshot with its host's (``guest``, after the
+        guest's own ``settle(t)``): at the same steps, the guest's first, so that a restarted
+        pair finds both at one step (``snapshot.common_snapshot``)."""
         actor, learner = self.actor, self.learner
         if not self._msg.rejected:
             for d in await self.deltas.due_now(t, self.ctx.realtime):
@@ -94,7 +97,11 @@ class LearnerActor(ActorBase):
         actor.slot.done(t)
         if self.role == "contingency":          # the executor's checkpoint's part
             save_statistics_part(part_dir(self.ctx, t), learner)
-        self.batches.out.snapshot(t, lambda d: save_learner(learner, d), CONSUMERS)
+        if self.guest or not self.batches.out.snapshot_now(t):
+            return
+        if guest is not None:                   # the learner's files are the host's
+            guest.batches.out.write_snapshot(t, None, CONSUMERS)
+        self.batches.out.write_snapshot(t, lambda d: save_learner(learner, d), CONSUMERS)
 
     async def finish(self) -> dict[str, Any]:
         """The final statistics part; stay until the consumers are done (a consumer behind
@@ -112,8 +119,10 @@ async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
 
 
 async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
-    """Both learning actors in one task on one learner (embedded): the contingency actor
-    observes each step and applies each delta once; one batch copy serves both."""
+    """Both learning actors in one task on one learner (when they share a process): the
+    contingency actor observes each step and applies each delta once; one batch copy serves
+    both; both snapshot at the same steps (:meth:`LearnerActor.settle`), so that a restarted
+    pair resumes both, and the shared learner, from one step."""
     with LearnerActor(session, ctx, "contingency") as host, \
             LearnerActor(session, ctx, "landmarks", shared=host.learner) as guest:
         await host.start()
@@ -125,7 +134,7 @@ async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
                 both = "landmarks" in batch_kinds(ctx.params, t)
                 await host.batch(t, guest if both else None)
                 await guest.settle(t)
-                await host.settle(t)
+                await host.settle(t, guest)
             # Both end together: each one's replay log waits for the other's token to go.
             host.nursery.start_soon(guest.finish)
             host.nursery.start_soon(host.finish)

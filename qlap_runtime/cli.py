@@ -75,11 +75,19 @@ def build_parser() -> argparse.ArgumentParser:
                           "when stdout is not a terminal)")
     run.add_argument("--placement", choices=("embedded", "processes", "sync"), default=None,
                      help="embedded (default): the actors of docs/runtime.md as trio tasks on "
-                          "one socket-less Zenoh session; processes: one process per actor "
-                          "around a router; sync: the synchronous reference loop (Algorithm 2) "
+                          "one socket-less Zenoh session; processes: process groups around a "
+                          "router (see --groups), a dead group restarted from its snapshots; "
+                          "sync: the synchronous reference loop (Algorithm 2) "
                           "without a bus, fastest. Same seed and lag give identical knowledge. "
                           "In a terminal without --headless, `qlap run` opens the terminal UI "
                           "on its own agent process unless a placement is given")
+    run.add_argument("--groups", default=None, metavar="LAYOUT",
+                     help="(processes) which actors share a process: two (default): the step "
+                          "chain (world, perception, executor) with the planner, and both "
+                          "learners on one learner, a process each; each: one process per "
+                          "actor (any actor but the world restarts alone); or groups spelled "
+                          "out, actors joined by '+', groups by ',' (e.g. "
+                          "world+perception+executor+planner,contingency+landmarks)")
     run.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
                      help="lockstep: the world waits for the executor and due deltas "
                           "(deterministic); realtime: the world ticks at --hz, deltas apply "
@@ -465,6 +473,11 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
     interactive = sys.stdout.isatty() and not args.headless
     tui = interactive and args.placement is None and args.resume is None
     args.placement = args.placement or "embedded"
+    if args.groups is not None and args.placement != "processes":
+        print(f"qlap run: --groups {args.groups} goes with --placement processes",
+              file=sys.stderr)
+        world.close()
+        return 2
     if args.lag is None:
         args.lag = 0 if args.placement == "sync" or tui else DEFAULT_ACTOR_LAG
     try:
@@ -638,6 +651,15 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     if not args.hz > 0:
         print(f"qlap run: --hz must be positive, got {args.hz}", file=sys.stderr)
         return 2
+    groups = None
+    if args.groups is not None:
+        from .placements.groups import GroupsError, parse_groups
+
+        try:
+            groups = parse_groups(args.groups)
+        except GroupsError as exc:
+            print(f"qlap run: --groups: {exc}", file=sys.stderr)
+            return 2
     ctx = RunContext(keys.new_run_id(), args.world, args.steps, args.seed, params,
                      clock=args.clock, hz=args.hz, keep_checkpoints=args.keep_checkpoints,
                      placement=args.placement)
@@ -662,8 +684,13 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
     ctx = ctx.with_(out=out)
     resumed = f", from step {ctx.start} of {ctx.resume_checkpoint}" \
         if ctx.resume_checkpoint is not None else ""
+    from .placements.groups import DEFAULT_GROUPS
+
+    layout = f" (groups {args.groups or DEFAULT_GROUPS})" if args.placement == "processes" \
+        else ""
     print(f"run {ctx.run_id}: {args.steps} steps of {args.world}, placement "
-          f"{args.placement}, {args.clock}, lag {params.batch_lag}{resumed}", file=sys.stderr)
+          f"{args.placement}{layout}, {args.clock}, lag {params.batch_lag}{resumed}",
+          file=sys.stderr)
     from .bus.auth import CREDENTIALS_FILE
 
     credentials = out / CREDENTIALS_FILE
@@ -691,7 +718,8 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
             print(f"router on tcp/127.0.0.1:{port} with authentication (qlap tui/record/echo "
                   f"--connect tcp/127.0.0.1:{port} --credentials {credentials})",
                   file=sys.stderr)
-            summary = run_processes(ctx, port, record=args.record)
+            summary = run_processes(ctx, port, record=args.record,
+                                    **({} if groups is None else {"groups": groups}))
     finally:
         if plain is not None:
             stop.set()

@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
 """Lockstep steps per second of each placement, all learning on (issue 5's "Fast").
 
-Runs the same world, seed and parameters with the synchronous loop, the embedded actors, one
-process per actor and (``--local``) the terminal UI's local runner, prints steps/s and waits,
-and checks that they all learned the same thing.
+Runs the same world, seed and parameters with the synchronous loop, the embedded actors, the
+processes placement in each layout of ``--groups`` (``processes``: the default groups, the step
+chain with the planner and the learners; ``processes/each``: one process per actor) and
+(``--local``) the terminal UI's local runner, prints steps/s and waits, and checks that they
+all learned the same thing.
 
 Usage: scripts/bench_placements.py [--world core] [--steps 6000] [--lag 500] [--babble 3000]
-                                   [--local]
+                                   [--groups two,each] [--local]
 """
 
 from __future__ import annotations
@@ -15,7 +17,9 @@ import argparse
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 # This tree's code, not the installed package's (a worktree measures itself; the processes
 # placement's children inherit the path).
@@ -35,6 +39,9 @@ def main() -> None:
     ap.add_argument("--lag", type=int, default=500)
     ap.add_argument("--babble", type=int, default=3000)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--groups", default="two,each",
+                    help="the processes placement's layouts to run, comma-separated (two: "
+                         "the default groups; each: one process per actor; none: skip)")
     ap.add_argument("--local", action="store_true",
                     help="also the terminal UI's local runner (tui/driver.py)")
     args = ap.parse_args()
@@ -47,13 +54,18 @@ def main() -> None:
     reference = knowledge_json(agent)
     print(f"{args.world}, {args.steps} steps, lag {args.lag}, babbling {args.babble}:")
     sync_wall = wall
-    print(f"  sync       {args.steps / wall:8,.0f} steps/s  wall {wall:.1f} s")
-    for name, fn in (("embedded", run_embedded), ("processes", run_processes)):
-        out = Path(tempfile.mkdtemp(prefix=f"bench-{name}-"))
-        s = fn(RunContext(f"bench-{name}", args.world, args.steps, args.seed, params, out=out))
+    print(f"  {'sync':15s} {args.steps / wall:8,.0f} steps/s  wall {wall:.1f} s")
+    runs: list[tuple[str, Any]] = [("embedded", run_embedded)]
+    for layout in (g for g in args.groups.split(",") if g and g != "none"):
+        label = "processes" if layout == "two" else f"processes/{layout}"
+        runs.append((label, partial(run_processes, groups=layout)))
+    for name, fn in runs:
+        out = Path(tempfile.mkdtemp(prefix=f"bench-{name.replace('/', '-')}-"))
+        s = fn(RunContext(f"bench-{name.replace('/', '-')}", args.world, args.steps, args.seed,
+                          params, out=out))
         same = (out / "knowledge.json").read_text() == reference
         loop_wall = args.steps / s["loop_steps_per_s"]
-        print(f"  {name:10s} {s['loop_steps_per_s']:8,.0f} steps/s (start-up excluded; "
+        print(f"  {name:15s} {s['loop_steps_per_s']:8,.0f} steps/s (start-up excluded; "
               f"{s['steps_per_s']:,.0f} with it)  wall / sync {loop_wall / sync_wall:.2f}  "
               f"waits {s['waits']}  identical knowledge: {same}")
     if args.local:
@@ -71,7 +83,7 @@ def main() -> None:
         d.stop()
         world.close()
         same = (out / "knowledge.json").read_text() == reference
-        print(f"  {'local':10s} {args.steps / wall:8,.0f} steps/s (start-up included)  "
+        print(f"  {'local':15s} {args.steps / wall:8,.0f} steps/s (start-up included)  "
               f"wall / sync {wall / sync_wall:.2f}  identical knowledge: {same}")
 
 

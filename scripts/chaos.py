@@ -39,6 +39,7 @@ import worlds
 from qlap_runtime import agent_run
 from qlap_runtime.agent_run import params_for_world
 from qlap_runtime.bus.faults import FAULT_TOPICS, Faults
+from qlap_runtime.placements.groups import parse_groups
 from qlap_runtime.placements.launcher import run_processes
 from qlap_runtime.qlap import Params
 from qlap_runtime.runtime.context import RunContext
@@ -80,8 +81,8 @@ class Killer:
                 ready = latest is not None and latest[0] >= k.at
             else:
                 ready = world_step >= k.at
-            p = sup.procs.get(k.victim)
-            if ready and p is not None and p.is_alive():
+            p = sup.process_of(k.victim)
+            if ready and p.is_alive():
                 os.kill(p.pid, signal.SIGKILL)
                 k.fired_at = world_step
                 self.log.append(f"{k.victim}@{world_step}"
@@ -89,10 +90,12 @@ class Killer:
             return                              # one kill per poll, in order
 
 
-def plan(rng: np.random.Generator, kills: int, steps: int, every: int) -> list[Kill]:
+def plan(rng: np.random.Generator, kills: int, steps: int, every: int,
+         groups: str = "each") -> list[Kill]:
+    victims = sorted(a for g in parse_groups(groups) if RESTARTABLE.issuperset(g) for a in g)
     out = []
     for i in range(kills):
-        victim = str(rng.choice(sorted(RESTARTABLE)))
+        victim = str(rng.choice(victims))
         after = bool(i % 2 == 0)
         if after:
             at = int(rng.integers(1, max(2, (steps - 300) // every))) * every - 1
@@ -111,7 +114,7 @@ def trial(i: int, args: argparse.Namespace) -> dict:
     rng = np.random.default_rng(seed)
     params = params_for(args.steps)
     expected = sync_knowledge(args.steps, seed, params)
-    killer = Killer(plan(rng, args.kills, args.steps, args.snapshot_every))
+    killer = Killer(plan(rng, args.kills, args.steps, args.snapshot_every, args.groups))
     with tempfile.TemporaryDirectory(prefix="qlap-chaos-") as tmp:
         w = worlds.make(WORLD)
         faults = None
@@ -127,7 +130,7 @@ def trial(i: int, args: argparse.Namespace) -> dict:
         t0 = time.monotonic()
         outcome, detail = "", ""
         try:
-            summary = run_processes(ctx, on_poll=killer)
+            summary = run_processes(ctx, on_poll=killer, groups=args.groups)
             got = (Path(tmp) / "knowledge.json").read_text()
             outcome = "identical" if got == expected else "different"
             detail = f"restarts {summary['restarts']}"
@@ -165,6 +168,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fault-topics", default=",".join(FAULT_TOPICS),
                    help="comma-separated topics the faults hit (default: every lockstep "
                         "topic)")
+    p.add_argument("--groups", default="each",
+                   help="the processes placement's layout (each: every actor in a process of "
+                        "its own, so each victim restarts alone; two: a victim's group, the "
+                        "learners, restarts together, and chain actors are not killed)")
     p.add_argument("--lost", action="store_true",
                    help="dropped messages are missing from the replay logs too (only the "
                         "watchdog's error can end such a trial)")

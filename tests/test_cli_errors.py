@@ -235,3 +235,33 @@ def test_resume_never_writes_over_the_source_run(capsys, tmp_path):
                         "--out", str(tmp_path / "resumed"))
     assert code == 0, err
     assert json.loads((tmp_path / "resumed" / "summary.json").read_text())["steps"] == 100
+
+
+# ------------------------------------------------------------------------ process groups
+@pytest.mark.parametrize("groups", ["bogus", "world+perception,executor",
+                                    "world+perception+executor+planner,contingency",
+                                    "world+perception+executor,planner+contingency+landmarks"])
+def test_a_wrong_groups_value_is_one_line_naming_it(capsys, tmp_path, groups):
+    code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "processes",
+                        "--world", "core2d", "--steps", "10", "--groups", groups,
+                        "--out", str(tmp_path / "r"))
+    assert code == 2
+    assert_one_line(code, err, "--groups", repr(groups))
+    assert not (tmp_path / "r").exists()
+
+
+def test_groups_go_with_the_processes_placement(capsys, tmp_path):
+    code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "embedded",
+                        "--world", "core2d", "--steps", "10", "--groups", "each",
+                        "--out", str(tmp_path / "r"))
+    assert_one_line(code, err, "--groups each", "--placement processes")
+
+
+def test_the_groups_layouts():
+    from qlap_runtime.placements.groups import ACTORS, LAYOUTS, parse_groups
+
+    assert parse_groups("two") == LAYOUTS["two"]
+    assert parse_groups("each") == tuple((a,) for a in ACTORS)
+    assert parse_groups("world+perception+executor+planner,contingency+landmarks") \
+        == LAYOUTS["two"]
+    assert sorted(a for g in LAYOUTS["two"] for a in g) == sorted(ACTORS)

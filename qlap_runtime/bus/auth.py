@@ -46,14 +46,15 @@ def run_users(actors: Iterable[str] = ()) -> dict[str, str]:
 
 def run_acl(users: Iterable[str]) -> dict[str, Any]:
     """The ACL of a run (``access_control``): each of ``users`` may put only on its own keys
-    (``keys.actor_put_keys``); ``viewer`` only on its liveliness token; everyone authenticated
-    may subscribe, query and receive under ``qlap/**``; everything else is denied."""
+    (``keys.actor_put_keys``; a process group's user, its actors joined by ``+``, on those of
+    each of its actors); ``viewer`` only on its liveliness token; everyone authenticated may
+    subscribe, query and receive under ``qlap/**``; everything else is denied."""
     puts: dict[str, list[str]] = {}
     for user in users:
         if user == VIEWER:
             puts[user] = [f"{keys.ROOT}/*/{keys.ALIVE}/{VIEWER}"]
         else:
-            puts[user] = keys.actor_put_keys(user)
+            puts[user] = [k for actor in user.split("+") for k in keys.actor_put_keys(actor)]
     return acl_own_keys(puts)
 
 

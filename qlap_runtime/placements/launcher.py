@@ -1,11 +1,14 @@
-"""Placements: the same actors in one process (embedded) or one process each (processes).
+"""Placements: the same actors in one process (embedded) or in process groups (processes).
 
 ``embedded`` opens one Zenoh session with no sockets and runs every actor as a trio task of one
 nursery. ``processes`` opens a Zenoh router in this process on a free loopback port and starts
-each actor in its own process (``spawn``), each with a client session to the router; a
-supervisor (:mod:`.supervisor`) restarts an actor that dies from its latest snapshot and the run
-goes on. In both, the run is in lockstep and the results are those of the synchronous loop with
-the same seed and parameters.
+each process group (:mod:`.groups`: by default the step chain with the planner, and the two
+learners; ``each``: one process per actor) in its own process (``spawn``), each with a client
+session to the router; a supervisor (:mod:`~qlap_runtime.runtime.supervisor`) restarts a group
+that dies from its actors' latest snapshots and the run goes on. What the actors of a process
+share — the step chain in one task, one learner for both learners, ``planreq`` in memory —
+follows from ``RunContext.groups`` (:func:`_run_group`). In every placement the run is in
+lockstep and the results are those of the synchronous loop with the same seed and parameters.
 """
 
 from __future__ import annotations
@@ -27,40 +30,74 @@ from ..bus.bridge import AliveWatcher
 from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
 from ..runtime.outputs import check_out
-from ..runtime.supervisor import Supervisor
+from ..runtime.supervisor import Supervisor, group_name
+from .groups import ACTORS, DEFAULT_GROUPS, LEARNERS, Layout, parse_groups
 
-ACTORS = ("perception", "contingency", "landmarks", "planner", "executor", "world")
-"""Every actor of a run; the world starts last (it waits for the others)."""
 CHAIN = ("world", "perception", "executor")
-"""The step chain: in the embedded placement one task runs their steps in turn (the world's
-hosts the others', ``actors.world.run``), so a step needs no wake-up between them."""
+"""The step chain: when its actors share a process, one task runs their steps in turn (the
+world's hosts the others', ``actors.world.run``), so a step needs no wake-up between them."""
+# LEARNERS (.groups): when they share a process, both run in one task on one learner
+# (``learning.run_pair``).
 
 
-async def _run_actor(name: str, session: Any, ctx: Any, ready: trio.Event | None = None) -> dict:
+def _units(names: tuple[str, ...], ctx: Any) -> list[str]:
+    """The tasks of a process running the actors ``names``: ``chain`` for the step chain and
+    ``learners`` for the pair when ``ctx.groups`` puts them together, the others one each."""
+    units, rest = [], list(names)
+    for unit, members in (("chain", CHAIN), ("learners", LEARNERS)):
+        if set(members) <= set(rest) and ctx.together(*members):
+            units.append(unit)
+            rest = [n for n in rest if n not in members]
+    return units + rest
+
+
+async def _run_unit(unit: str, session: Any, ctx: Any,
+                    ready: trio.Event | None = None) -> dict[str, Any]:
+    """One task of a process (:func:`_units`); returns ``{actor: result}``."""
     from actors import executor, learning, perception, planner, world
 
-    if name == "world":
-        return await world.run(session, ctx, ready)
-    if name == "chain":                     # embedded: world, perception, executor, one task
-        with perception.PerceptionActor(session, ctx) as per, \
-                executor.ExecutorActor(session, ctx, hosted=True) as ex:
+    if unit == "chain":                     # world, perception, executor: one task
+        with perception.PerceptionActor(session, ctx.for_actor("perception")) as per, \
+                executor.ExecutorActor(session, ctx.for_actor("executor"),
+                                       hosted=True) as ex:
             async with trio.open_nursery() as nursery:
                 nursery.start_soon(ex.between_steps)
                 result = await world.run(session, ctx, ready, perception=per, executor=ex)
                 nursery.cancel_scope.cancel()
             return {"world": result, "perception": per.result, "executor": ex.result}
-    if name == "contingency" and ctx.placement == "embedded":
-        # Both learners in one task on one learner: {"contingency": …, "landmarks": …}.
+    if unit == "learners":                  # both learners on one learner
         return await learning.run_pair(session, ctx)
-    if name == "perception":
-        return await perception.run(session, ctx)
-    if name in ("contingency", "landmarks"):
-        return await learning.run(session, ctx, name)
-    if name == "executor":
-        return await executor.run(session, ctx)
-    if name == "planner":
-        return await planner.run(session, ctx)
-    raise ValueError(f"unknown actor {name!r}; known: {', '.join(ACTORS)}")
+    actor_ctx = ctx.for_actor(unit)
+    if unit == "world":
+        return {unit: await world.run(session, actor_ctx, ready)}
+    if unit == "perception":
+        return {unit: await perception.run(session, actor_ctx)}
+    if unit in LEARNERS:
+        return {unit: await learning.run(session, actor_ctx, unit)}
+    if unit == "executor":
+        return {unit: await executor.run(session, actor_ctx)}
+    if unit == "planner":
+        return {unit: await planner.run(session, actor_ctx)}
+    raise ValueError(f"unknown actor {unit!r}; known: {', '.join(ACTORS)}")
+
+
+async def _run_group(names: tuple[str, ...], session: Any, ctx: Any,
+                     ready: trio.Event | None) -> dict[str, Any]:
+    """The actors ``names`` of one process on one session, a task per unit (:func:`_units`);
+    ``ready`` lets the world step. Returns ``{actor: result}``."""
+    results: dict[str, Any] = {}
+    if "world" in names:
+        # A process with the world is never restarted: its actors write no snapshots (an
+        # executor's took 0.3 s on the chain every snapshot_every steps).
+        ctx = ctx.with_(snapshot_dir=None)
+
+    async def one(unit: str) -> None:
+        results.update(await _run_unit(unit, session, ctx, ready))
+
+    async with trio.open_nursery() as nursery:
+        for unit in _units(names, ctx):
+            nursery.start_soon(one, unit)
+    return results
 
 
 async def _wait_alive(session: Any, run_id: str, names: set[str], limit_s: float) -> None:
@@ -79,7 +116,8 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     from ..runtime.watchdog import DEFAULT_STALL_S, Board, Watchdog
 
     results: dict[str, Any] = {}
-    ctx = ctx.with_(placement=ctx.placement or "embedded", board=Board(ACTORS))
+    ctx = ctx.with_(placement=ctx.placement or "embedded", board=Board(ACTORS),
+                    groups=(ACTORS,))
     if ctx.out is not None:
         check_out(Path(ctx.out))
     ctx, auth = _listen_auth(ctx, listen)
@@ -106,16 +144,8 @@ async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, An
         ready = trio.Event()
         stop = trio.Event()
 
-        async def one(name: str) -> None:
-            if name in CHAIN[1:] or name == "landmarks":
-                return                           # their steps run in another's task
-            if name == "world":
-                results.update(await _run_actor("chain", session, ctx, ready))
-                return
-            if name == "contingency":               # with the landmarks actor
-                results.update(await _run_actor(name, session, ctx, ready))
-                return
-            results[name] = await _run_actor(name, session, ctx, ready)
+        async def actors() -> None:
+            results.update(await _run_group(ACTORS, session, ctx, ready))
 
         async with trio.open_nursery() as outer:
             if record is not None:
@@ -125,8 +155,7 @@ async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, An
                 outer.start_soon(watcher, session, ctx, stop)
             outer.start_soon(_watch_stalls, watchdog, stop)
             async with trio.open_nursery() as nursery:
-                for name in ACTORS:
-                    nursery.start_soon(one, name)
+                nursery.start_soon(actors)
                 await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, 120)
                 ready.set()
                 for task in extra:                 # e.g. a test's fuzzer on the same session
@@ -162,22 +191,28 @@ async def _watch_stalls(watchdog: Any, stop: trio.Event) -> None:
             watchdog.check()
 
 
-async def _connected_actor(name: str, config: zenoh.Config, ctx: Any, watcher: Any,
-                           alive_limit_s: float) -> dict | None:
-    """One actor on its own client session, stopped early when ``watcher(cancel_scope)``
-    cancels it (signals, launcher gone); returns None if stopped before the end."""
-    result = None
+async def _connected_group(names: tuple[str, ...], config: zenoh.Config, ctx: Any,
+                           watcher: Any, alive_limit_s: float) -> dict[str, Any] | None:
+    """The actors ``names`` (:func:`_run_group`) on one client session, stopped early when
+    ``watcher(cancel_scope)`` cancels them (signals, launcher gone); returns ``{actor:
+    result}``, or None if stopped before the end. The world steps once every other actor of
+    the run is alive."""
+    results = None
     with zenoh.open(config) as session:
         async with trio.open_nursery() as nursery:
             nursery.start_soon(watcher, nursery.cancel_scope)
-            ready = None
-            if name == "world":
-                ready = trio.Event()
+            ready = trio.Event() if "world" in names else None
+
+            async def run() -> None:
+                nonlocal results
+                results = await _run_group(names, session, ctx, ready)
+                nursery.cancel_scope.cancel()
+
+            nursery.start_soon(run)
+            if ready is not None:
                 await _wait_alive(session, ctx.run_id, set(ACTORS) - {"world"}, alive_limit_s)
                 ready.set()
-            result = await _run_actor(name, session, ctx, ready)
-            nursery.cancel_scope.cancel()
-    return result
+    return results
 
 
 def run_embedded(ctx: Any, listen: tuple[str, ...] = (), record: Path | None = None,
@@ -199,12 +234,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
-                   slot: Any = None, password: str | None = None) -> None:
-    """Entry point of an actor's process (spawned: no state inherited).
+def _actor_process(names: tuple[str, ...], ctx_json: str, endpoint: str, result_path: str,
+                   slots: dict[str, Any] | None = None, password: str | None = None) -> None:
+    """Entry point of a process group's process (spawned: no state inherited): the actors
+    ``names`` on one session, their results as ``{actor: result}`` in ``result_path``.
 
     Ctrl-C is the launcher's business (it stops every actor): SIGINT is ignored here; SIGTERM,
-    or the launcher's death, cancels the actor, whose session is then closed.
+    or the launcher's death, cancels the actors, whose session is then closed.
     """
     import os
     import signal
@@ -212,11 +248,12 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
     from ..runtime.context import RunContext
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    names = tuple(names)
     ctx = RunContext.from_json(json.loads(ctx_json))
-    if slot is not None:                            # the supervisor's progress board
+    if slots is not None:                           # the supervisor's progress board
         from ..runtime.watchdog import Board
 
-        ctx = ctx.with_(board=Board((name,), {name: slot}))
+        ctx = ctx.with_(board=Board(names, slots))
     parent = os.getppid()
 
     async def watch(cancel: trio.CancelScope) -> None:
@@ -229,8 +266,8 @@ def _actor_process(name: str, ctx_json: str, endpoint: str, result_path: str,
         cancel.cancel()                             # the launcher died: stop, close the session
 
     try:
-        auth = {"user": name, "password": password} if password else {}
-        result = trio.run(_connected_actor, name, client_config([endpoint], **auth), ctx,
+        auth = {"user": group_name(names), "password": password} if password else {}
+        result = trio.run(_connected_group, names, client_config([endpoint], **auth), ctx,
                           watch, 60)
         if result is None:
             raise SystemExit(143)                   # stopped before the end of the run
@@ -261,12 +298,17 @@ def _write_error(result_path: Path, exc: BaseException) -> None:
 
 def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, *,
                   record: Path | None = None,
-                  on_poll: Callable[[Supervisor], None] | None = None) -> dict[str, Any]:
-    """One process per actor around a router opened here (docs/architecture.md §2, processes);
-    a dead actor is restarted from its latest snapshot (:mod:`.supervisor`).
+                  on_poll: Callable[[Supervisor], None] | None = None,
+                  groups: str | Layout = DEFAULT_GROUPS) -> dict[str, Any]:
+    """One process per process group around a router opened here (docs/architecture.md §2,
+    processes); a dead group is restarted from its actors' latest snapshots
+    (:mod:`~qlap_runtime.runtime.supervisor`).
 
-    ``record``: the router's session records every message of the run to an MCAP file (in a
-    thread of this process). ``on_poll(supervisor)`` is called at every poll (tests, tools).
+    ``groups``: the layout (:mod:`.groups`): ``two`` (default: the step chain and the
+    planner, and the learners), ``each`` (one process per actor), or a layout spelled out;
+    :class:`~.groups.GroupsError` names a wrong one. ``record``: the router's session records
+    every message of the run to an MCAP file (in a thread of this process).
+    ``on_poll(supervisor)`` is called at every poll (tests, tools).
     Ctrl-C or SIGTERM stops every actor (SIGTERM to each, which closes its session) and
     raises KeyboardInterrupt here once they are gone.
     """
@@ -275,9 +317,10 @@ def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, 
     def on_term(signum, frame):                     # SIGTERM: stop the actors like Ctrl-C
         raise KeyboardInterrupt
 
+    layout = parse_groups(groups)
     previous = signal.signal(signal.SIGTERM, on_term)
     try:
-        return _run_processes(ctx, listen_port, poll, record, on_poll)
+        return _run_processes(ctx.with_(groups=layout), listen_port, poll, record, on_poll)
     finally:
         signal.signal(signal.SIGTERM, previous)
         _reap_children()
@@ -312,7 +355,8 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
     # and the ACL of examples/router.json5; the UI's and viewer's in <out>/bus-credentials.json.
     from ..bus.auth import CREDENTIALS_FILE, run_acl, run_users, write_credentials
 
-    users = run_users(ACTORS)
+    names = tuple(group_name(g) for g in ctx.groups)
+    users = run_users(names)
     if ctx.out is not None:
         ctx = ctx.with_(credentials=write_credentials(Path(ctx.out) / CREDENTIALS_FILE,
                                                       [endpoint], users))
@@ -322,8 +366,8 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
         run_ctx = ctx.with_(snapshot_dir=ctx.snapshot_dir or Path(tmp) / "snapshots")
         recorder = _Recorder(router, ctx.run_id, record, ctx.to_json()) \
             if record is not None else None
-        sup = Supervisor(run_ctx, endpoint, Path(tmp), ACTORS, _actor_process,
-                         passwords={a: users[a] for a in ACTORS})
+        sup = Supervisor(run_ctx, endpoint, Path(tmp), ctx.groups, _actor_process,
+                         passwords={n: users[n] for n in names})
         try:
             sup.start_all()
             while sup.check():
@@ -335,7 +379,8 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
             if recorder is not None:
                 recorder.stop()
         results = sup.results()
-    return _finish(ctx, "processes", results, time.perf_counter() - t0, sup.report())
+    report = {**sup.report(), "groups": list(sup.groups)}
+    return _finish(ctx, "processes", results, time.perf_counter() - t0, report)
 
 
 RUN_DIR_PREFIX = "qlap-run-"
@@ -480,7 +525,7 @@ def run_actor(name: str, ctx: Any, config: zenoh.Config) -> dict[str, Any]:
                 cancel.cancel()
                 return
 
-    result = trio.run(_connected_actor, name, config, ctx, until_signal, 3600)
-    if result is None:
+    results = trio.run(_connected_group, (name,), config, ctx, until_signal, 3600)
+    if results is None:
         raise KeyboardInterrupt
-    return result
+    return results[name]

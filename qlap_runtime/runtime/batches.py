@@ -82,8 +82,14 @@ class DeltaOutbox:
         algorithm's files). It keeps the own deltas a consumer restarted from its oldest
         snapshot may still need (the restarted actor serves them again)."""
         if self.snapshot_now(t):
-            since = min(t, self.actor.oldest_snapshot(consumers))
-            self.actor.snapshot(t, save, own=[m.delta for m in self.pending(since)])
+            self.write_snapshot(t, save, consumers)
+
+    def write_snapshot(self, t: int, save: Callable[[Path], Any] | None,
+                       consumers: tuple[str, ...]) -> None:
+        """The actor's snapshot at ``t`` now (:meth:`snapshot` without the schedule; a guest
+        on its host's learner writes no algorithm files, ``save`` None)."""
+        since = min(t, self.actor.oldest_snapshot(consumers))
+        self.actor.snapshot(t, save, own=[m.delta for m in self.pending(since)])
 
 
 class Batches:

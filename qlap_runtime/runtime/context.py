@@ -39,6 +39,10 @@ class RunContext:
     """The first step of the run."""
     placement: str = ""
     """``embedded``, ``processes``, ``distributed`` (set by the placement)."""
+    groups: tuple[tuple[str, ...], ...] = ()
+    """The actors that share a process (set by the placement: embedded, one group of all;
+    processes, its layout); an actor in no group is alone. What is hosted, shared or handed
+    over in memory follows from it (:meth:`together`), not from the placement's name."""
     keep_checkpoints: int | None = None
     """Periodic checkpoints kept (the newest N; None: all)."""
     metrics_every: int = METRICS_EVERY
@@ -54,6 +58,9 @@ class RunContext:
     restarted: bool = False
     """This actor was restarted by the supervisor (from :attr:`resume_from`, or the start)."""
     resume_from: Path | None = None
+    resumes: dict[str, str] | None = None
+    """A restarted process group's snapshots, actor -> snapshot directory (an actor absent:
+    from the start); each actor of the group reads its own (:meth:`for_actor`)."""
     resume_checkpoint: Path | None = None
     """The checkpoint a resumed run starts from (``qlap run --resume``; its step is
     :attr:`start_step`): every actor without a snapshot of its own loads it
@@ -72,6 +79,19 @@ class RunContext:
     def with_(self, **changes: Any) -> RunContext:
         """A copy with ``changes`` (a placement adding what it knows)."""
         return dataclasses.replace(self, **changes)
+
+    def for_actor(self, name: str) -> RunContext:
+        """The context of actor ``name`` of a (restarted) process group: ``resume_from`` its
+        own snapshot of :attr:`resumes`; the context itself when there are none."""
+        if self.resumes is None:
+            return self
+        path = self.resumes.get(name)
+        return self.with_(resume_from=None if path is None else Path(path))
+
+    def together(self, *names: str) -> bool:
+        """True when the actors ``names`` run in one process (one group), so that they may
+        share a task, a learner or objects in memory."""
+        return any(set(names) <= set(group) for group in self.groups)
 
     @property
     def realtime(self) -> bool:
@@ -120,6 +140,7 @@ class RunContext:
             raise ValueError(f"unknown run context fields: {sorted(unknown)}")
         kw: dict[str, Any] = dict(d)
         kw["params"] = Params.from_dict(d["params"])
+        kw["groups"] = tuple(tuple(str(a) for a in g) for g in d.get("groups", ()))
         for name in ("out", "snapshot_dir", "credentials", "resume_from",
                      "resume_checkpoint"):
             if kw.get(name) is not None:

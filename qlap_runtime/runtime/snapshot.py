@@ -37,6 +37,10 @@ FORMAT = "qlap-actor-snapshot"
 VERSION = 1
 DEFAULT_EVERY = 1000
 """Steps between two snapshots of an actor unless ``RunContext.snapshot_every`` says."""
+KEEP = 1
+"""Older snapshots kept besides the latest: the actors of a process group write theirs one
+after the other, so a process killed between two writes still leaves a step that all of them
+have (:func:`common_snapshot`)."""
 
 
 def book_state(book: DeltaBook) -> dict[str, Any]:
@@ -79,9 +83,10 @@ def load_perception(per: Perception, directory: Path, name: str = "perception") 
 
 
 def write_snapshot(root: Path, actor: str, step: int, state: dict[str, Any],
-                   save: Callable[[Path], Any] | None = None) -> Path:
+                   save: Callable[[Path], Any] | None = None, keep: int = KEEP) -> Path:
     """Write ``<root>/<actor>/step-<step>/`` (``save(dir)`` writes the algorithm's files, then
-    ``actor.json`` holds ``state``), point ``latest.json`` at it, remove older ones."""
+    ``actor.json`` holds ``state``), point ``latest.json`` at it, remove older ones but the
+    ``keep`` newest (:data:`KEEP`)."""
     base = Path(root) / actor
     final = base / f"step-{step:09d}"
     tmp = base / f".step-{step:09d}.{os.getpid()}.tmp"
@@ -97,10 +102,44 @@ def write_snapshot(root: Path, actor: str, step: int, state: dict[str, Any],
     else:
         os.replace(tmp, final)
     atomic_write_json(base / "latest.json", {"step": int(step), "path": final.name})
-    for old in base.iterdir():
-        if old.is_dir() and old.name != final.name and not old.name.endswith(".tmp"):
-            shutil.rmtree(old, ignore_errors=True)
+    older = sorted((d for d in base.iterdir() if d.is_dir() and d.name != final.name
+                    and d.name.startswith("step-")), reverse=True)
+    for old in older[max(0, keep):]:
+        shutil.rmtree(old, ignore_errors=True)
     return final
+
+
+def snapshot_steps(root: Path, actor: str) -> dict[int, Path]:
+    """Every complete snapshot of ``actor``: step -> directory (a ``step-*`` directory is
+    complete: it is renamed into place once written)."""
+    out: dict[int, Path] = {}
+    try:
+        dirs = list((Path(root) / actor).glob("step-*"))
+    except OSError:
+        return out
+    for d in dirs:
+        try:
+            step = int(d.name.removeprefix("step-"))
+        except ValueError:
+            continue
+        if (d / "actor.json").exists():
+            out[step] = d
+    return out
+
+
+def common_snapshot(root: Path, actors: tuple[str, ...]) -> tuple[int, dict[str, Path]] | None:
+    """(step, actor -> directory) of the newest step at which every one of ``actors`` has a
+    snapshot (a process group resumes all its actors from one step), or None. For one actor
+    it is its latest snapshot."""
+    if len(actors) == 1:
+        latest = latest_snapshot(root, actors[0])
+        return None if latest is None else (latest[0], {actors[0]: latest[1]})
+    each = [snapshot_steps(root, a) for a in actors]
+    common = set.intersection(*(set(steps) for steps in each)) if each else set()
+    if not common:
+        return None
+    step = max(common)
+    return step, {a: steps[step] for a, steps in zip(actors, each, strict=True)}
 
 
 def latest_snapshot(root: Path, actor: str) -> tuple[int, Path] | None:

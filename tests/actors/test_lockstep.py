@@ -67,9 +67,22 @@ def test_embedded_lockstep_and_the_local_runner_equal_the_synchronous_loop(tmp_p
         assert load_world_state(tmp_path / "checkpoints" / "final") is not None
 
 
-def test_processes_lockstep_equals_the_synchronous_loop(tmp_path):
+@pytest.mark.parametrize(("groups", "processes"), [
+    ("two", ["world+perception+executor+planner", "contingency+landmarks"]),
+    ("each", ["perception", "contingency", "landmarks", "planner", "executor", "world"])])
+def test_processes_lockstep_equals_the_synchronous_loop(tmp_path, groups, processes):
+    """The process groups (the step chain hosted with the planner and planreq in memory, the
+    learners on one learner; docs/decisions.md 71) and one process per actor: the same
+    knowledge as the synchronous loop, over real Zenoh on loopback."""
     params = BASE.replace(batch_lag=200)
-    expected = sync_knowledge("core2d", params, seed=5)
-    summary = run_processes(context(tmp_path, "core2d", params, 5, "t-proc"))
-    assert (tmp_path / "knowledge.json").read_text() == expected
+    expected = sync_knowledge("core2d", params, seed=3)
+    summary = run_processes(context(tmp_path, "core2d", params, 3, f"t-proc-{groups}"),
+                            groups=groups)
+    got = (tmp_path / "knowledge.json").read_text()
+    assert json.loads(got)["dbns"], "nothing was learned: the comparison would be empty"
+    assert got == expected
     assert summary["placement"] == "processes"
+    assert summary["groups"] == processes
+    assert summary["steps"] == STEPS
+    assert sorted(summary["actors"]) == sorted(
+        ["world", "perception", "contingency", "landmarks", "planner", "executor"])

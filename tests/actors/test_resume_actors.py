@@ -144,9 +144,9 @@ def test_qlap_run_resume_in_embedded(capsys, tmp_path):
 
 @pytest.mark.slow
 def test_an_actor_killed_before_its_first_snapshot_restarts_from_the_checkpoint(tmp_path):
-    """processes: the supervisor restarts a batch actor of a resumed run that died before
-    its first snapshot; it loads the checkpoint again (not a fresh learner) and the run still
-    ends byte-identical."""
+    """processes: the supervisor restarts the learners' process of a resumed run that died
+    before its first snapshot; they load the checkpoint again (not a fresh learner) and the run
+    still ends byte-identical."""
     seed = 9
     expected = sync_knowledge(BASE, seed)
     ckpt = _source(tmp_path, "sync", seed)
@@ -158,11 +158,11 @@ def test_an_actor_killed_before_its_first_snapshot_restarts_from_the_checkpoint(
     def kill(sup) -> None:
         step = int(sup.board.slot("world").data[0])
         if not killed and step >= RESUME_AT + 100:
-            os.kill(sup.procs["contingency"].pid, signal.SIGKILL)
+            os.kill(sup.process_of("contingency").pid, signal.SIGKILL)
             killed.append(step)
 
     summary = run_processes(ctx, on_poll=kill)
     assert killed and killed[0] < RESUME_AT + 499, "killed after its first snapshot: vacuous"
-    assert [(r["actor"], r["from_step"]) for r in summary["restarted"]] == \
-        [("contingency", None)]
+    assert [(r["actors"], r["from_step"]) for r in summary["restarted"]] == \
+        [(["contingency", "landmarks"], None)]           # the learners' process
     assert (tmp_path / "resumed" / "knowledge.json").read_text() == expected

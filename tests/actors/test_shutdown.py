@@ -42,7 +42,8 @@ def wait_running(p: subprocess.Popen, placement: str, limit: float = 60) -> list
     deadline = time.monotonic() + limit
     while time.monotonic() < deadline:
         kids = children_of(p.pid)
-        if placement == "embedded" or len(kids) >= 5:
+        # processes: its two process groups and multiprocessing's resource tracker.
+        if placement == "embedded" or len(kids) >= 3:
             time.sleep(3)                                   # well into the run
             return children_of(p.pid)
         time.sleep(0.2)

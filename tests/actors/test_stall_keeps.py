@@ -26,18 +26,18 @@ from .test_faults import BASE, context
 def test_a_stalled_embedded_run_writes_a_final_checkpoint(tmp_path, monkeypatch):
     """The contingency actor is alive but never works (as if stuck): the executor waits for
     delta/dbn(500) at step 500 + lag = 700 and the watchdog stops the run after 3 s."""
-    real = launcher._run_actor
+    real = launcher._run_unit
 
-    async def stuck_contingency(name, session, ctx, ready=None):
-        if name != "contingency":
-            return await real(name, session, ctx, ready)
-        # In the embedded placement the contingency actor's task carries the landmarks
-        # actor too (docs/decisions.md 54): both are alive and stuck.
-        with declare_alive(session, ctx.run_id, name), \
+    async def stuck_contingency(unit, session, ctx, ready=None):
+        if unit != "learners":
+            return await real(unit, session, ctx, ready)
+        # In the embedded placement the learners' task carries both learning actors
+        # (docs/decisions.md 54): both are alive and stuck.
+        with declare_alive(session, ctx.run_id, "contingency"), \
                 declare_alive(session, ctx.run_id, "landmarks"):
             await trio.sleep_forever()
 
-    monkeypatch.setattr(launcher, "_run_actor", stuck_contingency)
+    monkeypatch.setattr(launcher, "_run_unit", stuck_contingency)
     out = tmp_path / "run"
     ctx = context(out, BASE, 3, "t-stall-keep").with_(stall_s=3)
     with pytest.raises(BaseException) as err:   # noqa: PT011 - RunStalled, maybe in a group

@@ -46,7 +46,7 @@ def test_executor_then_contingency_killed_around_a_snapshot_end_as_the_sync_loop
     ctx = context(tmp_path, BASE, 7, "t-two-kills").with_(stall_s=20)
     kills = TwoKills()
     t0 = time.monotonic()
-    summary = run_processes(ctx, on_poll=kills)
+    summary = run_processes(ctx, on_poll=kills, groups="each")
     wall = time.monotonic() - t0
     assert kills.executor_at == 999
     assert kills.contingency_at == 999, "contingency passed its next snapshot: vacuous"
@@ -65,7 +65,7 @@ def test_a_stopped_actor_is_a_stall_named_in_one_line_in_bounded_time(tmp_path):
 
     def freeze(sup: Supervisor) -> None:
         if not stopped and sup.board.slot("executor").data[0] >= 300:
-            os.kill(sup.procs["contingency"].pid, signal.SIGSTOP)
+            os.kill(sup.process_of("contingency").pid, signal.SIGSTOP)
             stopped.append(time.monotonic())
 
     with pytest.raises(RunStalled) as err:
