@@ -6,7 +6,7 @@ process per actor and (``--local``) the terminal UI's local runner, prints steps
 and checks that they all learned the same thing.
 
 Usage: scripts/bench_placements.py [--world core] [--steps 6000] [--lag 500] [--babble 3000]
-                                   [--local]
+                                   [--local] [--only embedded,processes]
 """
 
 from __future__ import annotations
@@ -37,7 +37,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--local", action="store_true",
                     help="also the terminal UI's local runner (tui/driver.py)")
+    ap.add_argument("--only", default="embedded,processes",
+                    help="the actor placements to run, comma-separated")
     args = ap.parse_args()
+    only = set(args.only.split(",")) - {""}
     world = worlds.make(args.world)
     params = params_for_world(world, Params(babble_steps=args.babble, batch_lag=args.lag))
     t0 = time.perf_counter()
@@ -49,6 +52,8 @@ def main() -> None:
     sync_wall = wall
     print(f"  sync       {args.steps / wall:8,.0f} steps/s  wall {wall:.1f} s")
     for name, fn in (("embedded", run_embedded), ("processes", run_processes)):
+        if name not in only:
+            continue
         out = Path(tempfile.mkdtemp(prefix=f"bench-{name}-"))
         s = fn(RunContext(f"bench-{name}", args.world, args.steps, args.seed, params, out=out))
         same = (out / "knowledge.json").read_text() == reference
