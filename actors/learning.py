@@ -176,6 +176,8 @@ async def run_handed(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]
                                              work=work)
                 host.actor.slot.done(t)
                 guest.actor.slot.done(t)
+            else:                               # alive until the executor's last step
+                await HANDED.take(ctx.run_id, ctx.end)
             HANDED.discard(ctx.run_id)
             host.nursery.start_soon(guest.finish)
             host.nursery.start_soon(host.finish)

@@ -166,12 +166,12 @@ class Batches:
 
 def hands_over(ctx: RunContext) -> bool:
     """Whether the executor hands the learning actors their batch copies (docs/decisions.md
-    72): in the embedded placement, with a lag or under the realtime clock (with L = 0 in
-    lockstep the executor waits for the batch of t before it observes t, so the learners keep
-    a learner of their own), and without snapshots (a learning actor without a learner has
-    none to write)."""
+    72): in the embedded placement in lockstep with a lag (with L = 0 the executor waits for
+    the batch of t before it observes t; under the realtime clock the copy, made on the step
+    chain, would hold the clock's task: decision 61 moved the learners' copies into their
+    worker threads), and without snapshots (an actor without a learner has none to write)."""
     return ctx.placement == "embedded" and ctx.snapshots is None \
-        and (ctx.params.batch_lag > 0 or ctx.realtime)
+        and ctx.params.batch_lag > 0 and not ctx.realtime
 
 
 class _Ended:
@@ -212,7 +212,8 @@ class HandedCopies:
 
     async def take(self, run_id: str, step: int) -> ModelLearner | _Ended | None:
         """The copy of ``step`` (waited for until the executor has observed that step), None
-        for a rejected step, :data:`ENDED` after the run's last step."""
+        for a rejected step, :data:`ENDED` after the run's last step (for a step after the
+        run's end: waits until the executor is done)."""
         key = (run_id, step)
         while key not in self.copies:
             if step > self.last.get(run_id, step):
