@@ -395,11 +395,12 @@ class Publisher:
     session's :class:`TrioSubscriber` s by :class:`LocalRoutes` alone and goes out on Zenoh
     only towards other sessions (``Locality.REMOTE``), and only while one of them has a
     matching subscriber (zenoh's matching listener, and its matching status when the listener
-    says no: a recorder or a UI that subscribes mid-run gets the messages from then on). Zenoh's matching status counts this session's
-    own subscribers too, whichever origin they allow (measured on zenoh 1.10), so a put for
-    everyone could not tell that nobody else listens; a raw subscriber of a lockstep topic on
-    this very session gets nothing (use a :class:`TrioSubscriber`, as the recorder does;
-    docs/decisions.md 73). Display and control topics go to every subscriber as before.
+    says no: a recorder or a UI that subscribes mid-run gets the messages from then on).
+    Zenoh's matching status counts this session's own subscribers too, whichever origin they
+    allow (measured on zenoh 1.10), so a put for everyone could not tell that nobody else
+    listens; a raw subscriber of a lockstep topic on this very session gets nothing (use a
+    :class:`TrioSubscriber`, as the recorder does; docs/decisions.md 73). Display and control
+    topics go to every subscriber as before.
     """
 
     def __init__(self, session: zenoh.Session, run_id: str, topic: str, *,
