@@ -3,7 +3,8 @@
 The executor writes each checkpoint (``agent.json``, its follower learner), but two things a
 checkpoint needs for an exact ``--resume`` live in other actors (docs/decisions.md 41): the
 world's state (the world actor, ``world.json``) and the pair and window statistics of DBN
-search (the contingency actor's learner, ``stats.json``/``stats.npz``;
+search (the contingency actor's learner, ``stats.json``/``stats.npz``, or in the embedded
+placement with a lag the executor's own, which keeps them there, docs/decisions.md 72;
 :func:`~qlap_runtime.qlap.checkpoint.load_learner` puts them into the follower learner). Each
 actor writes its part into ``checkpoints/step-N/`` at the same step as the executor (after
 step N − 1, in lockstep), each file atomically. The parts of the final state go to

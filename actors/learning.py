@@ -4,7 +4,9 @@ Both keep a :class:`~qlap_runtime.qlap.learner.ModelLearner` from the ``qstate``
 every delta at its step boundary: replicas of the synchronous loop's learner. ``contingency``
 computes lines 6–9 at every DBN batch (``delta/dbn``); ``landmarks`` computes lines 6–9 on its
 own copy, then 10–13 (``delta/landmarks``). How a batch runs is :mod:`~qlap_runtime.runtime.
-batches`'; when they share a process both run in one task on one learner (:func:`run_pair`).
+batches`'; when they share a process both run in one task on one learner (:func:`run_pair`),
+or, sharing the executor's process with a lag, on none: their batches compute on the copies of
+its learner the executor hands over (:func:`run_handed`, docs/decisions.md 72).
 """
 
 from __future__ import annotations
@@ -15,9 +17,11 @@ import trio
 
 from qlap_runtime.qlap.checkpoint import save_learner
 from qlap_runtime.qlap.learner import ModelLearner
+from qlap_runtime.qlap.variables import VariableTable
 from qlap_runtime.runtime.actor import Actor, ActorBase
-from qlap_runtime.runtime.batches import Batches
-from qlap_runtime.runtime.context import RunContext
+from qlap_runtime.runtime.batches import ENDED, HANDED, Batches, hands_over
+from qlap_runtime.runtime.context import RunContext, world_variables
+from qlap_runtime.runtime.inbox import DeltaInbox
 from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.rules import qstate_rule
 from qlap_runtime.runtime.start_state import start_learner
@@ -37,26 +41,36 @@ class LearnerActor(ActorBase):
     ``shared``: the learner of the contingency actor that hosts this one's steps
     (:func:`run_pair`): the host observes and applies the deltas, this guest only takes its
     messages (its rules and books as standalone) and publishes its part of the batches.
+    ``handed``: neither a learner nor the ``qstate`` and delta inputs (:func:`run_handed`).
     """
 
     def __init__(self, session: Any, ctx: RunContext, role: str,
-                 shared: ModelLearner | None = None) -> None:
+                 shared: ModelLearner | None = None, *, handed: bool = False) -> None:
         if role not in ROLES:
             raise ValueError(f"unknown learning role {role!r}; expected {sorted(ROLES)}")
         ctx = ctx.for_actor(role)                       # its own snapshot in a group
         self.ctx, self.role, self.kind, self.guest = ctx, role, ROLES[role], shared is not None
         self.actor = actor = Actor(session, ctx, role)
+        if handed:
+            n = len(VariableTable.from_specs(world_variables(ctx.world)[0]))
+            self.batches = Batches(actor, self.kind, n)
+            return
         self.learner = shared if shared is not None else start_learner(ctx, actor.resume)
         self.codec = QStateCodec(self.learner.table)
         n = len(self.learner.table)
         actor.input("qstate", window=ctx.replay_keep, rule=qstate_rule(self.codec.names))
         self.batches = Batches(actor, self.kind, n)     # batchctx in, delta/<kind> out
-        self.deltas = actor.deltas(n)
+        self.deltas: DeltaInbox | None = actor.deltas(n)
         self._msg: Any = None
+
+    learner: ModelLearner | None = None
+    """None when handed (:func:`run_handed`)."""
+    deltas: DeltaInbox | None = None
 
     async def start(self) -> None:
         await self.actor.start()
-        self.batches.out.requeue(self.deltas)           # its own deltas not yet applied here
+        if self.deltas is not None:
+            self.batches.out.requeue(self.deltas)       # its own deltas not yet applied here
 
     async def step(self, t: int) -> bool:
         if not await self.observe(t):
@@ -106,7 +120,7 @@ class LearnerActor(ActorBase):
     async def finish(self) -> dict[str, Any]:
         """The final statistics part; stay until the consumers are done (a consumer behind
         may ask for a lost delta)."""
-        if self.role == "contingency":
+        if self.role == "contingency" and self.learner is not None:
             save_statistics_part(final_dir(self.ctx), self.learner)
         self.result = await self.actor.finish(CONSUMERS, **self.batches.result())
         return self.result
@@ -122,7 +136,10 @@ async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
     """Both learning actors in one task on one learner (when they share a process): the
     contingency actor observes each step and applies each delta once; one batch copy serves
     both; both snapshot at the same steps (:meth:`LearnerActor.settle`), so that a restarted
-    pair resumes both, and the shared learner, from one step."""
+    pair resumes both, and the shared learner, from one step. In the executor's process with
+    a lag they keep no learner (:func:`run_handed`)."""
+    if hands_over(ctx):
+        return await run_handed(session, ctx)
     with LearnerActor(session, ctx, "contingency") as host, \
             LearnerActor(session, ctx, "landmarks", shared=host.learner) as guest:
         await host.start()
@@ -136,6 +153,41 @@ async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
                 await guest.settle(t)
                 await host.settle(t, guest)
             # Both end together: each one's replay log waits for the other's token to go.
+            host.nursery.start_soon(guest.finish)
+            host.nursery.start_soon(host.finish)
+        return {me.role: me.result for me in (host, guest)}
+
+
+async def run_handed(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
+    """Both learning actors in one task on no learner (embedded with a lag, docs/decisions.md
+    72). The executor's learner keeps every statistic a batch reads and, at each batch step t,
+    hands over its copy after observing ``qstate(t)`` and before the deltas due at t: the
+    state this pair's own learner would have had (:data:`~qlap_runtime.runtime.batches.
+    HANDED`). The pair then takes only those copies — no ``qstate``, no deltas, no per-step
+    learning — and computes the batch on each, with ``batchctx(t − 1)`` as before; the
+    executor writes the checkpoints' statistics part."""
+    HANDED.discard(ctx.run_id)                  # an earlier run's, of the same id
+    with LearnerActor(session, ctx, "contingency", handed=True) as host, \
+            LearnerActor(session, ctx, "landmarks", handed=True) as guest:
+        await host.start()
+        await guest.start()
+        async with trio.open_nursery() as host.nursery:
+            for t in host.actor.steps():
+                kinds = batch_kinds(ctx.params, t)
+                if not kinds:
+                    continue
+                work = await HANDED.take(ctx.run_id, t)
+                if work is ENDED:               # the run ended before t (a quit)
+                    break
+                if work is not None:            # None: step t was rejected, no batch
+                    await host.batches.begin(t, None, host.nursery, apply_batch_context,
+                                             guest.batches if "landmarks" in kinds else None,
+                                             work=work)
+                host.actor.slot.done(t)
+                guest.actor.slot.done(t)
+            else:                               # alive until the executor's last step
+                await HANDED.take(ctx.run_id, ctx.end)
+            HANDED.discard(ctx.run_id)
             host.nursery.start_soon(guest.finish)
             host.nursery.start_soon(host.finish)
         return {me.role: me.result for me in (host, guest)}

@@ -8,7 +8,7 @@ chain with the planner and the learners; ``processes/each``: one process per act
 all learned the same thing.
 
 Usage: scripts/bench_placements.py [--world core] [--steps 6000] [--lag 500] [--babble 3000]
-                                   [--groups two,each] [--local]
+                                   [--groups two,each] [--local] [--only embedded,processes]
 """
 
 from __future__ import annotations
@@ -44,7 +44,10 @@ def main() -> None:
                          "the default groups; each: one process per actor; none: skip)")
     ap.add_argument("--local", action="store_true",
                     help="also the terminal UI's local runner (tui/driver.py)")
+    ap.add_argument("--only", default="embedded,processes",
+                    help="the actor placements to run, comma-separated")
     args = ap.parse_args()
+    only = set(args.only.split(",")) - {""}
     world = worlds.make(args.world)
     params = params_for_world(world, Params(babble_steps=args.babble, batch_lag=args.lag))
     t0 = time.perf_counter()
@@ -55,8 +58,10 @@ def main() -> None:
     print(f"{args.world}, {args.steps} steps, lag {args.lag}, babbling {args.babble}:")
     sync_wall = wall
     print(f"  {'sync':15s} {args.steps / wall:8,.0f} steps/s  wall {wall:.1f} s")
-    runs: list[tuple[str, Any]] = [("embedded", run_embedded)]
-    for layout in (g for g in args.groups.split(",") if g and g != "none"):
+    runs: list[tuple[str, Any]] = [("embedded", run_embedded)] if "embedded" in only else []
+    layouts = [g for g in args.groups.split(",") if g and g != "none"] \
+        if "processes" in only else []
+    for layout in layouts:
         label = "processes" if layout == "two" else f"processes/{layout}"
         runs.append((label, partial(run_processes, groups=layout)))
     for name, fn in runs:

@@ -323,9 +323,11 @@ class LocalRoutes:
     in the embedded placement every step crosses three such hops. The message still goes out on
     Zenoh for every other subscriber (other processes, raw subscribers such as the terminal
     UI's), with an attachment naming this session and the routes' version; a subscriber of this
-    session registered by that version drops that second copy (:meth:`delivered`). Messages put
-    without a :class:`Publisher` (raw puts, other processes) reach every subscriber through
-    Zenoh as before.
+    session registered by that version drops that second copy (:meth:`delivered`). A message of
+    a lockstep topic goes out on Zenoh only to other sessions, and only while one of them
+    subscribes (:class:`Publisher`, docs/decisions.md 73). Messages put without a
+    :class:`Publisher` (raw puts, other processes) reach every subscriber through Zenoh as
+    before.
     """
 
     _by_session: ClassVar[dict[str, LocalRoutes]] = {}
@@ -388,6 +390,17 @@ class Publisher:
 
     Congestion control follows the topic (:func:`congestion_control`) unless given. With BLOCK,
     :meth:`put` may block while the network or a slow subscriber catches up: that is the point.
+
+    A lockstep topic's message (:data:`LOCKSTEP_TOPICS`; :attr:`remote_only`) reaches this
+    session's :class:`TrioSubscriber` s by :class:`LocalRoutes` alone and goes out on Zenoh
+    only towards other sessions (``Locality.REMOTE``), and only while one of them has a
+    matching subscriber (zenoh's matching listener, and its matching status when the listener
+    says no: a recorder or a UI that subscribes mid-run gets the messages from then on).
+    Zenoh's matching status counts this session's own subscribers too, whichever origin they
+    allow (measured on zenoh 1.10), so a put for everyone could not tell that nobody else
+    listens; a raw subscriber of a lockstep topic on this very session gets nothing (use a
+    :class:`TrioSubscriber`, as the recorder does; docs/decisions.md 73). Display and control
+    topics go to every subscriber as before.
     """
 
     def __init__(self, session: zenoh.Session, run_id: str, topic: str, *,
@@ -400,9 +413,20 @@ class Publisher:
         self.congestion = congestion if congestion is not None else congestion_control(topic)
         if express is None and topic in LOCKSTEP_TOPICS:
             express = True           # the step chain waits for these: no batching delay
+        self.remote_only = topic in LOCKSTEP_TOPICS
+        """Zenoh carries it to other sessions only, while one listens (see the class)."""
+        where = {"allowed_destination": zenoh.Locality.REMOTE} if self.remote_only else {}
         self._pub = session.declare_publisher(
             self.key, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=self.congestion,
-            priority=priority, express=express)
+            priority=priority, express=express, **where)
+        self.remote = True
+        """Whether another session has a matching subscriber (kept by zenoh's listener)."""
+        self._matching: Any = None
+        if self.remote_only:
+            self._matching = self._pub.declare_matching_listener(self._on_matching)
+            self.remote = bool(self._pub.matching_status.matching)
+        self.skipped = 0
+        """Zenoh puts left out: nobody outside the session listened."""
         self._routes = LocalRoutes.of(session)
         self._local: tuple[int, list[TrioSubscriber], bytes] = (-1, [], b"")
         """The routes' version, this key's local subscribers then, and their tag."""
@@ -435,16 +459,30 @@ class Publisher:
             version, local = self._routes.matching(self.key)
             tag = self._routes.tag(version)
             self._local = (version, local, tag)
-        if not local:
-            self._pub.put(payload)
-            return
         for sub in local:
             sub.deliver(self.key, payload, msg)
-        self._pub.put(payload, attachment=tag)
+        if self.remote_only:
+            # Other sessions only (no second local copy). The listener's False may lag
+            # zenoh's routing (a subscription just declared): zenoh's own answer decides then.
+            if self.remote or self._pub.matching_status.matching:
+                self._pub.put(payload)
+            else:
+                self.skipped += 1
+        elif local:
+            self._pub.put(payload, attachment=tag)
+        else:
+            self._pub.put(payload)
+
+    def _on_matching(self, status: Any) -> None:
+        # A Zenoh thread: one store (read by the next put).
+        self.remote = bool(status.matching)
 
     @property
     def matched(self) -> bool:
-        """True when some subscriber matches this key (zenoh's matching status)."""
+        """True when some subscriber matches this key: one of this session's
+        :class:`TrioSubscriber` s, or any (zenoh's matching status)."""
+        if self.remote_only and self._routes.matching(self.key)[1]:
+            return True
         status = self._pub.matching_status
         return bool(getattr(status, "matching", status))
 
@@ -463,6 +501,8 @@ class Publisher:
         if self.faults is not None:
             self.faults.close()
         try:
+            if self._matching is not None:
+                self._matching.undeclare()
             self._pub.undeclare()
         except zenoh.ZError:  # pragma: no cover
             pass

@@ -78,6 +78,10 @@ class ModelLearner:
         # is a follower: it keeps the DBN statistics but not the pair statistics of DBN search.
         self.auto_batches = True
         self.follower = False
+        self.keeps_pairs: bool | None = None
+        """Whether each step updates the pair and window statistics of DBN search (None:
+        unless a follower). The embedded placement's follower keeps them: the learning
+        actors take their batch copies from it (docs/decisions.md 72)."""
         self._expiry: deque[tuple[int, DBN, list]] = deque()
         self._mag_active: dict[int, list[DBN]] = {}
         self._reindex()
@@ -107,8 +111,13 @@ class ModelLearner:
         self.perception.break_history()
         self._drop_open_windows()
 
+    @property
+    def pairs_kept(self) -> bool:
+        """Whether the pair and window statistics are kept (:attr:`keeps_pairs`)."""
+        return not self.follower if self.keeps_pairs is None else self.keeps_pairs
+
     def _drop_open_windows(self) -> None:
-        if not self.follower:
+        if self.pairs_kept:
             self.pairs.drop_open_windows()
             self.window.drop_open_episodes()
         for entry in (e for _, _, e in self._expiry):
@@ -130,7 +139,7 @@ class ModelLearner:
 
     def _learn_step(self, p: Percept) -> Percept:
         self.step = p.step
-        if not self.follower:
+        if self.pairs_kept:
             self.pairs.update(p.step, p.event_ids)
             if not self.k_learned:
                 self._update_window(p)

@@ -111,33 +111,39 @@ class Batches:
         """The executor's state the batch at ``t`` reads (:func:`context_before`)."""
         return await context_before(self.contexts, t, self.ctx)
 
-    async def begin(self, t: int, learner: ModelLearner, nursery: trio.Nursery,
+    async def begin(self, t: int, learner: ModelLearner | None, nursery: trio.Nursery,
                     prepare: Callable[[ModelLearner, BatchContext], None],
-                    guest: Batches | None = None) -> None:
+                    guest: Batches | None = None, work: ModelLearner | None = None) -> None:
         """The batch at ``t``: the executor's state it reads (``prepare(learner, context)``
         gives it to ``learner``), then :meth:`start`. ``guest``: the batches of the landmarks
         actor hosted on the same learner (docs/decisions.md 54), which take their part of the
-        same computation and their own copy of the same context."""
+        same computation and their own copy of the same context. ``work``: the batch copy
+        already made (the executor's, :data:`HANDED`, docs/decisions.md 72; ``learner`` None),
+        given the same context: copying and then setting the context gives what setting it
+        and then copying gave (it sets ``reliable_actions`` and ``is_plan`` flags only)."""
         context = await self.context(t)
         if guest is not None:
             await guest.context(t)
         if context is not None:
-            prepare(learner, context)
+            prepare(learner if work is None else work, context)
         outs = [self.out] if guest is None else [self.out, guest.out]
-        await self.start(learner, t, outs, nursery)
+        await self.start(learner, t, outs, nursery, work)
 
-    async def start(self, learner: ModelLearner, t: int, outs: list[DeltaOutbox],
-                    nursery: trio.Nursery) -> None:
-        """The batch at ``t`` on a copy of ``learner``: lines 6–9, then 10–13 when one of
-        ``outs`` publishes landmarks; each of ``outs`` publishes its part, in their order (dbn
-        first: the order every consumer applies them in). When the batch runs in a worker
-        thread the copy is made there too, while the actor awaits it (nothing else touches
-        its learner), so that the trio loop goes on meanwhile: core's copy at step 2,000 held
-        the loop 14 ms, a missed tick under the realtime clock."""
+    async def start(self, learner: ModelLearner | None, t: int, outs: list[DeltaOutbox],
+                    nursery: trio.Nursery, work: ModelLearner | None = None) -> None:
+        """The batch at ``t`` on a copy of ``learner`` (or on ``work``, a copy already):
+        lines 6–9, then 10–13 when one of ``outs`` publishes landmarks; each of ``outs``
+        publishes its part, in their order (dbn first: the order every consumer applies them
+        in). When the batch runs in a worker thread the copy is made there too, while the
+        actor awaits it (nothing else touches its learner), so that the trio loop goes on
+        meanwhile: core's copy at step 2,000 held the loop 14 ms, a missed tick under the
+        realtime clock."""
         landmarks = any(out.kind == "landmarks" for out in outs)
         kinds = ("dbn", "landmarks") if landmarks else ("dbn",)
-        work = copy_for_batch(learner) if self.inline \
-            else await to_thread(copy_for_batch, learner)
+        if work is None:
+            assert learner is not None
+            work = copy_for_batch(learner) if self.inline \
+                else await to_thread(copy_for_batch, learner)
         for out in outs:
             out.reserve(t)
         if self.inline:
@@ -162,6 +168,74 @@ class Batches:
 
     def result(self) -> dict[str, Any]:
         return {"batches": len(self.times), "batch_s": round(sum(self.times), 3)}
+
+
+def hands_over(ctx: RunContext) -> bool:
+    """Whether the executor hands the learning actors their batch copies (docs/decisions.md
+    72): when they share the executor's process (``RunContext.together``: the embedded
+    placement), in lockstep with a lag (with L = 0 the executor waits for
+    the batch of t before it observes t; under the realtime clock the copy, made on the step
+    chain, would hold the clock's task: decision 61 moved the learners' copies into their
+    worker threads), and without snapshots (an actor without a learner has none to write)."""
+    return ctx.together("executor", "contingency", "landmarks") and ctx.snapshots is None \
+        and ctx.params.batch_lag > 0 and not ctx.realtime
+
+
+class _Ended:
+    """:meth:`HandedCopies.take`'s answer for a step after the run's last one."""
+
+
+ENDED = _Ended()
+
+
+class HandedCopies:
+    """Batch copies of the executor's learner handed to the learning actors of the same
+    process (docs/decisions.md 72), by run and step. The executor's follower keeps the pair
+    statistics then, and at a batch step t, after observing ``qstate(t)`` and before the
+    deltas due at t, it is the state a learning actor's own replica would be in (the state
+    the planner's in-process request copies too); the learners then keep no replica that
+    observes every step a second time. Used on one trio loop; a take waits for its put."""
+
+    def __init__(self) -> None:
+        self.copies: dict[tuple[str, int], ModelLearner | None] = {}
+        self.waiting: dict[tuple[str, int], trio.Event] = {}
+        self.last: dict[str, int] = {}
+        """A run's last step, once its executor is done."""
+
+    def put(self, run_id: str, step: int, learner: ModelLearner | None) -> None:
+        """Hand over a batch copy of ``learner`` (made now: the learner goes on); None: step
+        ``step`` was rejected, no batch starts there."""
+        self.copies[(run_id, step)] = None if learner is None else copy_for_batch(learner)
+        self._wake(lambda key: key == (run_id, step))
+
+    def end(self, run_id: str, last: int) -> None:
+        """The run's executor took no step after ``last``."""
+        self.last[run_id] = last
+        self._wake(lambda key: key[0] == run_id)
+
+    def _wake(self, which: Callable[[tuple[str, int]], bool]) -> None:
+        for key in [k for k in self.waiting if which(k)]:
+            self.waiting.pop(key).set()
+
+    async def take(self, run_id: str, step: int) -> ModelLearner | _Ended | None:
+        """The copy of ``step`` (waited for until the executor has observed that step), None
+        for a rejected step, :data:`ENDED` after the run's last step (for a step after the
+        run's end: waits until the executor is done)."""
+        key = (run_id, step)
+        while key not in self.copies:
+            if step > self.last.get(run_id, step):
+                return ENDED
+            await self.waiting.setdefault(key, trio.Event()).wait()
+        return self.copies.pop(key)
+
+    def discard(self, run_id: str) -> None:
+        """Forget a run (its learners are done): the copies nobody took, its end."""
+        for key in [k for k in self.copies if k[0] == run_id]:
+            del self.copies[key]
+        self.last.pop(run_id, None)
+
+
+HANDED = HandedCopies()
 
 
 def copy_for_batch(learner: ModelLearner) -> ModelLearner:

@@ -20,7 +20,7 @@ from qlap_runtime.bus.bridge import (
     fetch,
 )
 from qlap_runtime.bus.config import client_config
-from qlap_runtime.bus.schema import CallList, DeltaMsg, Motor, Sense
+from qlap_runtime.bus.schema import CallList, DeltaMsg, Motor, QState, Sense, decode
 from qlap_runtime.qlap.delta import Delta
 
 N_BURST = 20_000
@@ -148,21 +148,65 @@ async def test_a_message_reaches_its_own_sessions_subscribers_within_put_and_onc
         embedded, run_id):
     """LocalRoutes: on a peer session (the embedded placement's) Zenoh runs Python callbacks on
     a thread of its own, so an in-process hop cost a thread hand-over and a trio wake-up; a
-    Publisher now hands its message to the TrioSubscribers of its session during ``put``. A raw
-    subscriber of the session still gets it through Zenoh, and the TrioSubscriber drops the
-    tagged second copy."""
+    Publisher now hands its message to the TrioSubscribers of its session during ``put``. A
+    lockstep topic then goes out on Zenoh only to other sessions (decision 73): a raw
+    subscriber of the same session gets nothing, and no zenoh put is made while no other
+    session listens. A display topic still reaches a raw subscriber of the session, and the
+    TrioSubscriber drops the tagged second copy."""
     key = keys.key(run_id, "sense")
     raw: list[bytes] = []
     with TrioSubscriber(embedded, key) as sub, Publisher(embedded, run_id, "sense") as pub:
         handle = embedded.declare_subscriber(key, lambda s: raw.append(s.payload.to_bytes()))
+        assert pub.matched                      # the TrioSubscriber
         for t in range(3):
             before = sub.received
             pub.put(Sense(t, {"x": 1.0}))
             assert sub.received == before + 1          # delivered within put
-        await trio.sleep(0.5)                  # the raw and the tagged copies arrive meanwhile
-        assert len(raw) == 3
+        await trio.sleep(0.5)
+        assert raw == [] and pub.skipped == 3
         assert [r.msg.step for r in sub.receive_nowait()] == [0, 1, 2]     # once each
         handle.undeclare()
+    key = keys.key(run_id, "calllist")
+    with TrioSubscriber(embedded, key) as sub, Publisher(embedded, run_id, "calllist") as pub:
+        handle = embedded.declare_subscriber(key, lambda s: raw.append(s.payload.to_bytes()))
+        for t in range(3):
+            pub.put(CallList(t, ()))
+        await trio.sleep(0.5)                  # the raw and the tagged copies arrive meanwhile
+        assert len(raw) == 3
+        assert len(sub.receive_nowait()) == 3  # once each
+        handle.undeclare()
+
+
+async def test_a_session_that_subscribes_mid_run_gets_the_lockstep_messages_from_then_on(
+        two_clients, run_id):
+    """Decision 73: with nobody outside the session, a lockstep topic is not put on Zenoh; a
+    second session that subscribes (a recorder, a UI) is seen by zenoh's matching listener and
+    gets every message from then on."""
+    here, there = two_clients
+    key = keys.key(run_id, "qstate")
+    with TrioSubscriber(here, key) as local, Publisher(here, run_id, "qstate") as pub:
+        for t in range(3):
+            pub.put(QState(t, {}, (), {}))
+        assert pub.skipped == 3 and not pub.remote
+        got: list[int] = []
+        handle = there.declare_subscriber(
+            key, lambda s: got.append(decode(str(s.key_expr), s.payload.to_bytes()).step))
+        with trio.fail_after(10):
+            while not pub.remote:  # noqa: ASYNC110 - set by zenoh's matching listener
+                await trio.sleep(0.01)
+        for t in range(3, 6):
+            pub.put(QState(t, {}, (), {}))
+        with trio.fail_after(10):
+            while len(got) < 3:  # noqa: ASYNC110 - a zenoh callback appends
+                await trio.sleep(0.01)
+        assert got == [3, 4, 5] and pub.skipped == 3
+        assert [r.msg.step for r in local.receive_nowait()] == list(range(6))
+        handle.undeclare()
+        with trio.fail_after(10):
+            while pub.remote:  # noqa: ASYNC110 - gone: no puts again
+                await trio.sleep(0.01)
+        pub.put(QState(6, {}, (), {}))
+        assert pub.skipped == 4
 
 
 async def test_other_sessions_get_a_locally_handed_message_once(two_clients, run_id):
