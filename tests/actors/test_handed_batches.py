@@ -40,11 +40,15 @@ def test_a_take_waits_for_its_put_and_ends_with_the_run():
     assert not copies.copies and not copies.last
 
 
-def test_only_the_embedded_placement_with_a_lag_hands_over():
-    ctx = RunContext("r", "core2d", 10, 0, Params(batch_lag=200), placement="embedded")
+def test_only_learners_in_the_executors_process_with_a_lag_are_handed_copies():
+    from qlap_runtime.placements.groups import ACTORS, LAYOUTS
+
+    ctx = RunContext("r", "core2d", 10, 0, Params(batch_lag=200), placement="embedded",
+                     groups=(ACTORS,))                     # as run_embedded sets it
     assert hands_over(ctx)
     assert not hands_over(ctx.with_(params=Params(batch_lag=0)))       # L = 0: own learner
-    assert not hands_over(ctx.with_(placement="processes"))
+    for layout in ("two", "each"):                         # the learners in another process
+        assert not hands_over(ctx.with_(placement="processes", groups=LAYOUTS[layout]))
     assert not hands_over(ctx.with_(clock="realtime"))              # the copy would hold it
 
 
