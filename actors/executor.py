@@ -3,9 +3,8 @@
 Its agent's learner is a follower (DBN statistics from ``qstate``, the batch actors' deltas at
 step boundaries). At each batch step it publishes its agent for the planner (``planreq``) and
 applies the plan delta at t + L after the batch's deltas; Sarsa and Dyna stay here
-(docs/decisions.md 56). In the embedded placement with a lag its learner also keeps the pair
-statistics and hands the learning actors their batch copies, and it writes the checkpoints'
-statistics part (docs/decisions.md 72). Controls, display and files:
+(docs/decisions.md 56). With the learners in its process and a lag, it hands them their batch
+copies (:mod:`actors.handover`, docs/decisions.md 72). Controls, display and files:
 :mod:`actors.executor_parts`.
 """
 
@@ -18,20 +17,13 @@ import trio
 from qlap_runtime.bus.schema import Motor
 from qlap_runtime.qlap.checkpoint import save_agent
 from qlap_runtime.runtime.actor import Actor, ActorBase
-from qlap_runtime.runtime.batches import HANDED, hands_over
 from qlap_runtime.runtime.context import RunContext
-from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.rules import qstate_rule
 
-from .checkpoint_parts import (
-    final_dir,
-    gather_final_parts,
-    keep_on_stall,
-    part_dir,
-    save_statistics_part,
-)
+from .checkpoint_parts import gather_final_parts, keep_on_stall
 from .convert import QStateCodec
 from .executor_parts import BatchLinks, Controls, Files, end_marker, load_executor_agent
+from .handover import HandOver
 
 NAME = "executor"
 
@@ -46,11 +38,7 @@ class ExecutorActor(ActorBase):
         self.actor = actor = Actor(session, ctx, NAME, obey=True)
         self.agent, self.checkpoint = load_executor_agent(ctx, actor.resume)
         agent = self.agent
-        self.hands_over = hands_over(ctx)
-        """Its learner is the learning actors' (docs/decisions.md 72): it keeps the pair
-        statistics, hands over batch copies and writes the statistics part."""
-        if self.hands_over:
-            agent.learner.keeps_pairs = True
+        self.handover = HandOver(ctx, agent.learner)    # decision 72
         self.codec = QStateCodec(agent.table)
         actor.input("qstate", window=1, rule=qstate_rule(self.codec.names))
         self.deltas = actor.deltas(len(agent.table))
@@ -84,8 +72,7 @@ class ExecutorActor(ActorBase):
             self.deltas.book.skipped.add(t)
             self.links.rejected(t)
             self.files.rejected.append(f"step {t}: {msg.rejected}")
-            if self.hands_over and batch_kinds(ctx.params, t):
-                HANDED.put(ctx.run_id, t, None)             # no batch at t
+            self.handover.observed(t, None)                 # no batch at t
             motor = Motor(t, dict(agent.motor))
         else:
             # The learner's percept: a landmark applied at t renumbers its q in place, as in
@@ -94,8 +81,7 @@ class ExecutorActor(ActorBase):
             plans = await self.links.plans.due(t) if ctx.params.batch_lag else None
             p = agent.learner.observe_percept(self.codec.percept(msg))
             self.links.observed(agent, t)
-            if self.hands_over and batch_kinds(ctx.params, t):
-                HANDED.put(ctx.run_id, t, agent.learner)   # the state the batch at t copies
+            self.handover.observed(t, agent.learner)      # the state the batch at t copies
             for d in due:
                 agent.learner.apply_delta(d)
             agent.pending_plans.extend(plans if plans is not None
@@ -108,8 +94,7 @@ class ExecutorActor(ActorBase):
         if p is not None:
             self.controls.publish(False)
         self.files.after_step(t, p, self.controls.runner.agent_changes)
-        if self.hands_over:                     # as the contingency actor's learner has them
-            save_statistics_part(part_dir(ctx, t), agent.learner)
+        self.handover.after_step(t, agent.learner)
         if actor.snapshot_due(t):
             actor.snapshot(t, lambda d: save_agent(agent, d), rejected=self.files.rejected,
                            **self.links.logs())
@@ -120,7 +105,7 @@ class ExecutorActor(ActorBase):
     async def finish(self, quit_at: int | None) -> dict[str, Any]:
         """After the last step (``quit_at``: the world's last step after a ``quit``): the
         final status and files; then stay until the actors behind are done."""
-        self._end_handing()
+        self.handover.end(self.actor.resume.step + self.steps_done)
         if quit_at is not None:                 # the status answers the world's end marker
             await end_marker(self.actor)
         self.actor.slot.finished()
@@ -130,25 +115,19 @@ class ExecutorActor(ActorBase):
                                         **self.files.result(self.steps_done, quit_at))
         self.files.final(self.steps_done if quit_at is not None else self.ctx.steps,
                          self.controls.runner.agent_changes)
-        if self.hands_over:
-            save_statistics_part(final_dir(self.ctx), self.agent.learner)
+        self.handover.final(self.agent.learner)
         # Outputs first; then an actor behind may still ask for a lost context or request.
         await self.actor.linger(("contingency", "landmarks", "planner"))
         if self.ctx.placement == "distributed":  # no launcher: the executor places them
             await gather_final_parts(self.actor.session, self.ctx)
         return self.result
 
-    def _end_handing(self) -> None:
-        """No batch copy after the last step taken (the learners wait for none)."""
-        if self.hands_over:
-            HANDED.end(self.ctx.run_id, self.actor.resume.step + self.steps_done)
-
     def _end(self) -> None:
         self.controls.close()                   # once each
         self.files.close(self.actor.resume.step + 1 + self.steps_done)
 
     def close(self) -> None:
-        self._end_handing()
+        self.handover.end(self.actor.resume.step + self.steps_done)
         self._end()
         self.actor.close()
 

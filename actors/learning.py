@@ -4,22 +4,18 @@ Both keep a :class:`~qlap_runtime.qlap.learner.ModelLearner` from the ``qstate``
 every delta at its step boundary: replicas of the synchronous loop's learner. ``contingency``
 computes lines 6–9 at every DBN batch (``delta/dbn``); ``landmarks`` computes lines 6–9 on its
 own copy, then 10–13 (``delta/landmarks``). How a batch runs is :mod:`~qlap_runtime.runtime.
-batches`'; when they share a process both run in one task on one learner (:func:`run_pair`),
-or, sharing the executor's process with a lag, on none: their batches compute on the copies of
-its learner the executor hands over (:func:`run_handed`, docs/decisions.md 72).
+batches`'; two sharing a process run in one task (:mod:`actors.learning_pair`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-import trio
-
 from qlap_runtime.qlap.checkpoint import save_learner
 from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.qlap.variables import VariableTable
 from qlap_runtime.runtime.actor import Actor, ActorBase
-from qlap_runtime.runtime.batches import ENDED, HANDED, Batches, hands_over
+from qlap_runtime.runtime.batches import Batches
 from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.inbox import DeltaInbox
 from qlap_runtime.runtime.lockstep import batch_kinds
@@ -39,9 +35,10 @@ class LearnerActor(ActorBase):
     :meth:`observe` (lines 2–5), :meth:`batch` (6–9 or 6–13 on a copy), :meth:`settle`.
 
     ``shared``: the learner of the contingency actor that hosts this one's steps
-    (:func:`run_pair`): the host observes and applies the deltas, this guest only takes its
-    messages (its rules and books as standalone) and publishes its part of the batches.
-    ``handed``: neither a learner nor the ``qstate`` and delta inputs (:func:`run_handed`).
+    (:func:`~actors.learning_pair.run_pair`): the host observes and applies the deltas, this
+    guest only takes its messages (its rules and books as standalone) and publishes its part
+    of the batches. ``handed``: neither a learner nor the ``qstate`` and delta inputs
+    (:func:`~actors.learning_pair.run_handed`).
     """
 
     def __init__(self, session: Any, ctx: RunContext, role: str,
@@ -64,7 +61,7 @@ class LearnerActor(ActorBase):
         self._msg: Any = None
 
     learner: ModelLearner | None = None
-    """None when handed (:func:`run_handed`)."""
+    """None when handed (:func:`~actors.learning_pair.run_handed`)."""
     deltas: DeltaInbox | None = None
 
     async def start(self) -> None:
@@ -130,64 +127,3 @@ async def run(session: Any, ctx: RunContext, role: str) -> dict[str, Any]:
     """One learning actor as a task of its own."""
     with LearnerActor(session, ctx, role) as me:
         return await me.run()
-
-
-async def run_pair(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
-    """Both learning actors in one task on one learner (when they share a process): the
-    contingency actor observes each step and applies each delta once; one batch copy serves
-    both; both snapshot at the same steps (:meth:`LearnerActor.settle`), so that a restarted
-    pair resumes both, and the shared learner, from one step. In the executor's process with
-    a lag they keep no learner (:func:`run_handed`)."""
-    if hands_over(ctx):
-        return await run_handed(session, ctx)
-    with LearnerActor(session, ctx, "contingency") as host, \
-            LearnerActor(session, ctx, "landmarks", shared=host.learner) as guest:
-        await host.start()
-        await guest.start()
-        async with trio.open_nursery() as host.nursery:
-            for t in host.actor.steps():
-                if not await host.observe(t) or not await guest.observe(t):
-                    break
-                both = "landmarks" in batch_kinds(ctx.params, t)
-                await host.batch(t, guest if both else None)
-                await guest.settle(t)
-                await host.settle(t, guest)
-            # Both end together: each one's replay log waits for the other's token to go.
-            host.nursery.start_soon(guest.finish)
-            host.nursery.start_soon(host.finish)
-        return {me.role: me.result for me in (host, guest)}
-
-
-async def run_handed(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]:
-    """Both learning actors in one task on no learner (embedded with a lag, docs/decisions.md
-    72). The executor's learner keeps every statistic a batch reads and, at each batch step t,
-    hands over its copy after observing ``qstate(t)`` and before the deltas due at t: the
-    state this pair's own learner would have had (:data:`~qlap_runtime.runtime.batches.
-    HANDED`). The pair then takes only those copies — no ``qstate``, no deltas, no per-step
-    learning — and computes the batch on each, with ``batchctx(t − 1)`` as before; the
-    executor writes the checkpoints' statistics part."""
-    HANDED.discard(ctx.run_id)                  # an earlier run's, of the same id
-    with LearnerActor(session, ctx, "contingency", handed=True) as host, \
-            LearnerActor(session, ctx, "landmarks", handed=True) as guest:
-        await host.start()
-        await guest.start()
-        async with trio.open_nursery() as host.nursery:
-            for t in host.actor.steps():
-                kinds = batch_kinds(ctx.params, t)
-                if not kinds:
-                    continue
-                work = await HANDED.take(ctx.run_id, t)
-                if work is ENDED:               # the run ended before t (a quit)
-                    break
-                if work is not None:            # None: step t was rejected, no batch
-                    await host.batches.begin(t, None, host.nursery, apply_batch_context,
-                                             guest.batches if "landmarks" in kinds else None,
-                                             work=work)
-                host.actor.slot.done(t)
-                guest.actor.slot.done(t)
-            else:                               # alive until the executor's last step
-                await HANDED.take(ctx.run_id, ctx.end)
-            HANDED.discard(ctx.run_id)
-            host.nursery.start_soon(guest.finish)
-            host.nursery.start_soon(host.finish)
-        return {me.role: me.result for me in (host, guest)}

@@ -6,7 +6,7 @@ the layout (``RunContext.groups``, ``RunContext.together``), never from the plac
 
 - world, perception and executor together: one task runs the step chain (the world's task
   hosts the other two, as in the embedded placement);
-- contingency and landmarks together: one learner serves both (``actors.learning.run_pair``);
+- contingency and landmarks together: one learner serves both (``actors.learning_pair.run_pair``);
 - executor and planner together: ``planreq`` hands over the agent in memory
   (``actors.convert.LocalRequests``) instead of its files.
 

@@ -37,7 +37,7 @@ CHAIN = ("world", "perception", "executor")
 """The step chain: when its actors share a process, one task runs their steps in turn (the
 world's hosts the others', ``actors.world.run``), so a step needs no wake-up between them."""
 # LEARNERS (.groups): when they share a process, both run in one task on one learner
-# (``learning.run_pair``).
+# (``learning_pair.run_pair``).
 
 
 def _units(names: tuple[str, ...], ctx: Any) -> list[str]:
@@ -54,7 +54,7 @@ def _units(names: tuple[str, ...], ctx: Any) -> list[str]:
 async def _run_unit(unit: str, session: Any, ctx: Any,
                     ready: trio.Event | None = None) -> dict[str, Any]:
     """One task of a process (:func:`_units`); returns ``{actor: result}``."""
-    from actors import executor, learning, perception, planner, world
+    from actors import executor, learning, learning_pair, perception, planner, world
 
     if unit == "chain":                     # world, perception, executor: one task
         with perception.PerceptionActor(session, ctx.for_actor("perception")) as per, \
@@ -66,7 +66,7 @@ async def _run_unit(unit: str, session: Any, ctx: Any,
                 nursery.cancel_scope.cancel()
             return {"world": result, "perception": per.result, "executor": ex.result}
     if unit == "learners":                  # both learners on one learner
-        return await learning.run_pair(session, ctx)
+        return await learning_pair.run_pair(session, ctx)
     actor_ctx = ctx.for_actor(unit)
     if unit == "world":
         return {unit: await world.run(session, actor_ctx, ready)}
