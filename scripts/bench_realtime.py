@@ -13,7 +13,7 @@ and nothing else to do, and the load average. On a shared machine that floor, no
 often decides p99.
 
 Usage: scripts/bench_realtime.py [--world core] [--steps 6000] [--hz 100] [--placement P]
-                                 [--runs N] [--reference-ticks 1000]
+                                 [--groups two|each] [--runs N] [--reference-ticks 1000]
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from functools import partial
 from pathlib import Path
 
 # This tree's code, not the installed package's (a worktree measures itself).
@@ -64,12 +65,16 @@ def main() -> None:
     ap.add_argument("--placement", action="append", choices=("embedded", "processes"),
                     help="only this placement (repeatable; default: both)")
     ap.add_argument("--runs", type=int, default=1, help="runs of each placement")
+    ap.add_argument("--groups", default="two",
+                    help="the processes placement's layout (two: the default groups; each: "
+                         "one process per actor)")
     ap.add_argument("--reference-ticks", type=int, default=1000,
                     help="ticks of the bare reference loop before each run (0: none)")
     args = ap.parse_args()
     params = Params()
     print(f"{args.world}, {args.steps} ticks at {args.hz:g} Hz, realtime clock:")
-    placements = {"embedded": run_embedded, "processes": run_processes}
+    placements = {"embedded": run_embedded,
+                  "processes": partial(run_processes, groups=args.groups)}
     for run in range(args.runs):
         for name in args.placement or list(placements):
             load = " ".join(f"{x:.2f}" for x in os.getloadavg())
