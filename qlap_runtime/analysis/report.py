@@ -338,11 +338,13 @@ def format_timeline(timelines: Mapping[str, Sequence[KnowledgePoint]],
     return "\n".join(lines)
 
 
-def report_data(paths: Sequence[Path]) -> dict[str, Any]:
+def report_data(paths: Sequence[Path],
+                targets: ref.WorldTargets = ref.CORE_TARGETS) -> dict[str, Any]:
     """Everything ``qlap report --json`` prints, as a dict: ``reference``, ``runs`` (each run's
     final figures), ``mean``, ``timeline`` (each run's counts at every checkpoint),
     ``growth`` (each run's verdict), ``growth_mean`` (the verdict on the mean across runs at
-    the checkpoint steps they all have), ``speed`` (each run's summary.json speed)."""
+    the checkpoint steps they all have), ``speed`` (each run's summary.json speed). The growth
+    verdicts use the limit, first step and tolerance of ``targets`` (core's by default)."""
     paths = [Path(p) for p in paths]
     if not paths:
         raise AnalysisError("give at least one run directory")
@@ -350,10 +352,12 @@ def report_data(paths: Sequence[Path]) -> dict[str, Any]:
     figures = [knowledge_figures(load_knowledge(p), resolutions_of(p)) for p in paths]
     timelines = {label: knowledge_timeline(p) if (p / "checkpoints").is_dir() else []
                  for label, p in zip(labels, paths, strict=True)}
-    growth = {label: growth_verdict([q.step for q in pts], [q.change_dbns for q in pts])
+    rule = {"limit": targets.change_dbn_limit, "after": targets.growth_after,
+            "tolerance": targets.growth_tolerance}
+    growth = {label: growth_verdict([q.step for q in pts], [q.change_dbns for q in pts], **rule)
               for label, pts in timelines.items()}
     common = mean_series(timelines, common=True)
-    growth_mean = growth_verdict([q.step for q in common], [q.mean for q in common])
+    growth_mean = growth_verdict([q.step for q in common], [q.mean for q in common], **rule)
     speeds = {label: run_speed(p) for label, p in zip(labels, paths, strict=True)}
     mean: dict[str, Any] = {key: _mean([f[key] for f in figures])
             for key in ("k", "change_dbns", "magnitude_dbns", "landmarks_median",

@@ -47,6 +47,8 @@ __all__ = [
     "ResultsConfig",
     "TaskResult",
     "build_results",
+    "clearly_above",
+    "other_pages",
     "render_page",
     "run_command",
     "run_dir_name",
@@ -56,8 +58,8 @@ __all__ = [
 ]
 
 PROTOCOL: dict[str, Any] = {"world": "core", "steps": 250_000, "seeds": 5, "trials": 100}
-"""The protocol the targets are set for: core, 250,000 steps, 5 seeds, the sync loop, 100
-trials per checkpoint."""
+"""The protocol core's targets are set for: core, 250,000 steps, 5 seeds, the sync loop, 100
+trials per checkpoint (each world's: :class:`.reference_values.WorldTargets`)."""
 
 Echo = Callable[[str], None]
 
@@ -203,26 +205,33 @@ def _world_base(world: str) -> str:
     return world.split(":", 1)[0]
 
 
-def task_targets(res: TaskResult) -> list[tuple[str, str, bool | None]]:
-    """(target, measured, met) of one task: the final reward (core tasks only), the margin
-    over the random policy, the last three checkpoints above the 20,000-step one."""
+def task_targets(res: TaskResult,
+                 targets: ref.WorldTargets | None = None) -> list[tuple[str, str, bool | None]]:
+    """(target, measured, met) of one task, by the targets of its world
+    (:func:`.reference_values.targets_for`): the final reward (core tasks only), the margin
+    over the random policy (core) or the final mean clearly above it (pong), the last three
+    checkpoints above the 20,000-step one."""
+    T = targets or ref.targets_for(res.world)
     pts = res.points
     end = pts[-1] if pts else None
     out: list[tuple[str, str, bool | None]] = []
-    goal = ref.TASK_REWARD.get(res.task) if _world_base(res.world) == "core" else None
+    goal = T.task_reward.get(res.task) if _world_base(res.world) == T.world else None
     if goal is not None:
         out.append((f"mean reward at the end ≥ {goal:g}",
                     "—" if end is None else f"{end.mean_reward:.2f}",
                     None if end is None else end.mean_reward >= goal))
     base = res.baseline
-    if end is not None and base is not None:
-        margin = end.mean_reward - base.mean_reward
-        out.append((f"at least {ref.ABOVE_RANDOM:g} above the random policy",
-                    f"{margin:+.2f} ({end.mean_reward:.2f} against {base.mean_reward:.2f})",
-                    margin >= ref.ABOVE_RANDOM))
-    else:
-        out.append((f"at least {ref.ABOVE_RANDOM:g} above the random policy", "—", None))
-    at20 = next((p for p in pts if p.step == 20_000), None)
+    if T.above_random is not None:
+        if end is not None and base is not None:
+            margin = end.mean_reward - base.mean_reward
+            out.append((f"at least {T.above_random:g} above the random policy",
+                        f"{margin:+.2f} ({end.mean_reward:.2f} against {base.mean_reward:.2f})",
+                        margin >= T.above_random))
+        else:
+            out.append((f"at least {T.above_random:g} above the random policy", "—", None))
+    if T.clearly_above_random is not None:
+        out.append(clearly_above(end, base, len(res.labels), T.clearly_above_random))
+    at20 = next((p for p in pts if p.step == T.rise_from), None)
     last3 = pts[-3:]
     if at20 is None or len(last3) < 3 or any(p.step <= at20.step for p in last3):
         out.append(("each of the last three checkpoints above the 20k one",
@@ -233,6 +242,28 @@ def task_targets(res: TaskResult) -> list[tuple[str, str, bool | None]]:
                     + f" against {at20.mean_reward:.2f}",
                     all(p.mean_reward > at20.mean_reward for p in last3)))
     return out
+
+
+def clearly_above(end: CurvePoint | None, base: CurveRow | None, n_runs: int,
+                  z: float) -> tuple[str, str, bool | None]:
+    """(target, measured, met) of "clearly above the random policy": the final mean over the
+    seeds exceeds the random policy's mean by more than ``z`` standard errors of the
+    difference, √(s.e.² across seeds + s.e.² of the random policy over its trials) (§7.3: the
+    error bars are standard errors), and every seed's final mean exceeds the random policy's.
+    n/a without a baseline, a final checkpoint, or at least two seeds there."""
+    target = (f"clearly above the random policy: mean − random > {z:g} s.e. of the "
+              "difference, and every seed above random")
+    if end is None or base is None:
+        return target, "—", None
+    se = math.sqrt((0.0 if math.isnan(end.stderr) else end.stderr) ** 2 + base.stderr ** 2)
+    margin = end.mean_reward - base.mean_reward
+    seeds = list(end.runs.values())
+    above = sum(x > base.mean_reward for x in seeds)
+    measured = (f"{margin:+.2f} ({end.mean_reward:.2f} against {base.mean_reward:.2f}), "
+                f"{z:g} s.e. = {z * se:.2f}; {above}/{n_runs} seeds above")
+    if len(seeds) < 2 or math.isnan(end.stderr):
+        return target, measured + " (fewer than two seeds: not judged)", None
+    return target, measured, bool(margin > z * se and above == n_runs)
 
 
 def _pm(mean: float | None, se: float | None, fmt: str = "{:.2f}") -> str:
@@ -251,15 +282,16 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join([line(header), line(["---"] * len(header)), *map(line, rows)])
 
 
-def _task_section(res: TaskResult, image: str | None) -> list[str]:
+def _task_section(res: TaskResult, image: str | None,
+                  targets: ref.WorldTargets = ref.CORE_TARGETS) -> list[str]:
     pts = res.points
     lines = [f"### {res.task}", ""]
     if not pts:
         return [*lines, "No evaluation in curve.csv.", ""]
     chosen: list[tuple[str, CurvePoint]] = []
-    at20 = next((p for p in pts if p.step == 20_000), None)
+    at20 = next((p for p in pts if p.step == targets.rise_from), None)
     if at20 is not None:
-        chosen.append(("20k (end of babbling)", at20))
+        chosen.append((f"{targets.rise_from // 1000}k (end of babbling)", at20))
     for p in pts[-3:]:
         if p is not at20:
             chosen.append((f"{p.step:,}" + (" (end)" if p is pts[-1] else ""), p))
@@ -276,15 +308,20 @@ def _task_section(res: TaskResult, image: str | None) -> list[str]:
                      f"{b.success_rate:.0%}", "—", *("" for _ in res.labels)])
     lines += [_table(header, rows), ""]
     lines += [_table(["target", "measured", "met"],
-                     [[t, m, _mark(ok)] for t, m, ok in task_targets(res)]), ""]
+                     [[t, m, _mark(ok)] for t, m, ok in task_targets(res, targets)]), ""]
     if image:
         lines += [f"![{res.task}: mean reward against steps]({image})", ""]
     return lines
 
 
-def _knowledge_rows(data: Mapping[str, Any]) -> list[list[str]]:
+def _knowledge_rows(data: Mapping[str, Any],
+                    targets: ref.WorldTargets = ref.CORE_TARGETS) -> list[list[str]]:
     """The knowledge table: measure, reference, target, each seed, mean, seeds meeting it,
-    mark (the mean against the target; "with a plan" asks every seed for one)."""
+    mark (the mean against the target; "with a plan" asks every seed for one). ``targets``
+    decide which rows are judged ("—" target: shown, not judged) and whether the core world's
+    chapter-8 rows (Table 8.1, Fig. 7.9, u_x, rel(a)) are there; ``data["growth"]`` must have
+    been judged by the same targets (:func:`.report.report_data`)."""
+    T = targets
     runs = data["runs"]
     labels = list(runs)
     R = data["reference"]
@@ -304,19 +341,26 @@ def _knowledge_rows(data: Mapping[str, Any]) -> list[list[str]]:
 
     ks = [runs[r]["k"] for r in labels]
     mk = mean_of(ks)
-    add("window k (App. C)", f"≈ {R['k']['value']} (§7.10.1)", "4 to 8",
-        [str(k) for k in ks], _pm(mk, None, "{:.1f}"),
-        [None if k is None else 4 <= k <= 8 for k in ks],
-        None if mk is None else 4 <= mk <= 8)
+    if T.k_range is None:
+        add("window k (App. C)", f"≈ {R['k']['value']} (§7.10.1)", "—",
+            [str(k) for k in ks], _pm(mk, None, "{:.1f}"), [None] * n, None)
+    else:
+        k0, k1 = T.k_range
+        add("window k (App. C)", f"≈ {R['k']['value']} (§7.10.1)", f"{k0} to {k1}",
+            [str(k) for k in ks], _pm(mk, None, "{:.1f}"),
+            [None if k is None else k0 <= k <= k1 for k in ks],
+            None if mk is None else k0 <= mk <= k1)
+    limit = T.change_dbn_limit
     ch = [runs[r]["change_dbns"] for r in labels]
     mch = mean_of(ch)
-    add("change DBNs at the end (Fig. 7.9)", f"≈ {ref.CHANGE_DBNS}",
-        f"≤ {ref.CHANGE_DBN_LIMIT}", [str(c) for c in ch], _pm(mch, None, "{:.1f}"),
-        [c <= ref.CHANGE_DBN_LIMIT for c in ch],
-        None if mch is None else mch <= ref.CHANGE_DBN_LIMIT)
+    add("change DBNs at the end" + (" (Fig. 7.9)" if T.chapter_8 else ""),
+        f"≈ {ref.CHANGE_DBNS}" if T.chapter_8 else "—",
+        f"≤ {limit}", [str(c) for c in ch], _pm(mch, None, "{:.1f}"),
+        [c <= limit for c in ch], None if mch is None else mch <= limit)
     gm = data["growth_mean"]
-    add(f"change DBNs not growing after {ref.GROWTH_AFTER // 1000}k", "bounded (Fig. 7.9)",
-        f"fitted rise ≤ {ref.GROWTH_TOLERANCE:.0%} of the mean",
+    add(f"change DBNs not growing after {T.growth_after // 1000}k",
+        "bounded (Fig. 7.9)" if T.chapter_8 else "—",
+        f"fitted rise ≤ {T.growth_tolerance:.0%} of the mean",
         [_growth_cell(growth[r]) for r in labels], _growth_cell(gm),
         [growth[r]["flat"] for r in labels], gm["flat"])
     mag = [runs[r]["magnitude_dbns"] for r in labels]
@@ -324,19 +368,29 @@ def _knowledge_rows(data: Mapping[str, Any]) -> list[list[str]]:
         _pm(mean_of(mag), None, "{:.1f}"), [None] * n, None)
     med = [runs[r]["landmarks_median"] for r in labels]
     mmed = mean_of(med)
-    add("landmarks per variable, median", f"{R['landmarks_median']:g} (Table 8.1)", "≤ 4",
+    gmed = T.landmarks_median
+    add("landmarks per variable, median",
+        f"{R['landmarks_median']:g} (Table 8.1)" if T.chapter_8 else "—",
+        "—" if gmed is None else f"≤ {gmed:g}",
         ["—" if m is None else f"{m:g}" for m in med], _pm(mmed, None, "{:.1f}"),
-        [None if m is None else m <= 4 for m in med], None if mmed is None else mmed <= 4)
+        [None if m is None or gmed is None else m <= gmed for m in med],
+        None if mmed is None or gmed is None else mmed <= gmed)
     top = [runs[r]["landmarks_max"] for r in labels]
     mtop = mean_of(top)
-    add("landmarks per variable, max", f"{R['landmarks_max']} (Table 8.1)", "≤ 9",
+    gmax = T.landmarks_max
+    add("landmarks per variable, max",
+        f"{R['landmarks_max']} (Table 8.1)" if T.chapter_8 else "—",
+        "—" if gmax is None else f"≤ {gmax}",
         ["—" if t is None else f"{t} ({pretty(runs[r]['landmarks_max_variable'])})"
          for t, r in zip(top, labels, strict=True)], _pm(mtop, None, "{:.1f}"),
-        [None if t is None else t <= 9 for t in top], None if mtop is None else mtop <= 9)
+        [None if t is None or gmax is None else t <= gmax for t in top],
+        None if mtop is None or gmax is None else mtop <= gmax)
     nar = [runs[r]["narrow_count"] for r in labels]
     mnar = mean_of(nar)
     add("values narrower than the resolution", "none", "0", [str(x) for x in nar],
         _pm(mnar, None, "{:.1f}"), [x == 0 for x in nar], None if mnar is None else mnar == 0)
+    if not T.chapter_8:
+        return rows
     lo, hi = ref.FRICTION_BAND
     (m0, m1), (p0, p1) = ref.U_X_LANDMARKS
     for side, band, reference in (("plus", f"[{lo:g}, {hi:g}]", f"[{p0}, {p1}]"),
@@ -347,7 +401,7 @@ def _knowledge_rows(data: Mapping[str, Any]) -> list[list[str]]:
             ["n/a" if u is None else (", ".join(u[side]) or "none") for u in ux],
             f"{sum(1 for x in ok if x)}/{n} with one", ok,
             None if all(x is None for x in ok) else all(bool(x) for x in ok))
-    for ra in ref.ACTIONS:
+    for ra in T.actions:
         key = f"a({ra.variable}, {ra.value})"
         need_plan = ra.variable == "h_x.dot"
         acts = [runs[r]["actions"][key] for r in labels]
@@ -363,6 +417,24 @@ def _knowledge_rows(data: Mapping[str, Any]) -> list[list[str]]:
              f"{a['rel']:.2f}" + (" (plan)" if a["plan"] else " (no plan)") for a in acts],
             _pm(mrel, None) + f", plan {sum(a['plan'] for a in acts)}/{n}", per, met)
     return rows
+
+
+def _landmark_rows(data: Mapping[str, Any]) -> list[str]:
+    """Landmarks of each motor and magnitude variable (initial ones included), one column per
+    seed and the largest: the figures behind the median and max rows."""
+    runs = data["runs"]
+    labels = list(runs)
+    variables = list(dict.fromkeys(v for r in labels for v in runs[r]["landmarks"]))
+    if not variables:
+        return []
+    rows = []
+    for v in variables:
+        counts = [runs[r]["landmarks"].get(v) for r in labels]
+        have = [c for c in counts if c is not None]
+        rows.append([pretty(v), *("—" if c is None else str(c) for c in counts),
+                     str(max(have)) if have else "—"])
+    return ["Landmarks per variable (initial ones included):", "",
+            _table(["variable", *labels, "max"], rows), ""]
 
 
 def _growth_cell(v: Mapping[str, Any]) -> str:
@@ -421,9 +493,15 @@ def _shown(path: Path) -> str:
 def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[str, Any],
                 images: Mapping[str, str], run_dirs: Sequence[Path], *,
                 date: str | None = None, cores: int | None = None,
-                commit: str | None = None) -> str:
-    """The Markdown of the results page. ``images``: task name (and ``"dbn"``) → the image's
-    path relative to the page."""
+                commit: str | None = None,
+                see_also: Sequence[tuple[str, str]] = ()) -> str:
+    """The Markdown of the results page, judged by the targets of ``cfg.world``
+    (:func:`.reference_values.targets_for`). ``images``: task name (and ``"dbn"``) → the
+    image's path relative to the page; ``see_also``: (text, path relative to the page) of
+    other results pages, listed under the introduction (``data`` from
+    :func:`.report.report_data` with the same targets)."""
+    T = ref.targets_for(cfg.world)
+    core = T is ref.CORE_TARGETS
     date = date or _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     cores = cores if cores is not None else os.cpu_count()
     commit = commit or _git_commit(Path.cwd(), (Path(cfg.out) / "results.md",
@@ -438,13 +516,17 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
         "--jobs", str(cfg.jobs), "--runs-dir",
         _shown(cfg.runs_dir), "--out", _shown(cfg.out), "--tasks",
         *[t.task for t in tasks]])
-    protocol_ok = (_world_base(cfg.world) == PROTOCOL["world"] and cfg.steps == PROTOCOL["steps"]
-                   and len(cfg.seeds) >= PROTOCOL["seeds"] and cfg.trials == PROTOCOL["trials"])
+    protocol_ok = (_world_base(cfg.world) == T.world and cfg.steps == T.steps
+                   and len(cfg.seeds) >= T.seeds and cfg.trials == T.trials)
     L: list[str] = [
-        "# Learning results",
+        "# Learning results" + ("" if core else f": {T.world}"),
         "",
         "What a QLAP agent learns in the synchronous loop, over several seeds: the task "
-        "curves of §7.2, the knowledge of chapter 8 and the DBN count of Fig. 7.9 of J. Mugan, "
+        + ("curves of §7.2, the knowledge of chapter 8 and the DBN count of Fig. 7.9 of "
+           if core else
+           "curve of §7.10 (evaluated as §7.2), the knowledge and the DBN count (as Fig. 7.9) "
+           "of ")
+        + "J. Mugan, "
         "*Autonomous Qualitative Learning of Distinctions and Actions in a Developing Agent*, "
         "PhD dissertation, UT Austin, 2010, each beside the reference's figures and the targets "
         "this project set itself. Generated by `scripts/learning_results.py`; do not edit by "
@@ -458,6 +540,7 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
         + f", {cfg.trials} trials each (trial seed {cfg.eval_seed}, the same set-ups for every "
         "checkpoint), learning off (plans' Sarsa adapts within a trial and is undone before "
         "the next, docs/decisions.md 37), as `qlap eval`.",
+        *(f"- See also: {text}, [{path}]({path})." for text, path in see_also),
         "",
         "The command (as typed, then with every option spelled out):",
         "",
@@ -479,20 +562,22 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
         "",
     ]
     if not protocol_ok:
-        L += [f"> **Not the targets' protocol.** The targets below are set for the core world, "
-              f"{PROTOCOL['steps']:,} steps, at least {PROTOCOL['seeds']} seeds and "
-              f"{PROTOCOL['trials']} trials a checkpoint; this page ran {cfg.world}, "
+        L += ["> **Not the targets' protocol.** The targets below are set for the "
+              + ("core world" if core else T.world) + ", "
+              f"{T.steps:,} steps, at least {T.seeds} seeds and "
+              f"{T.trials} trials a checkpoint; this page ran {cfg.world}, "
               f"{cfg.steps:,} steps, {len(cfg.seeds)} seed(s), {cfg.trials} trials. The marks "
               "are indicative only.", ""]
 
-    krows = _knowledge_rows(data)
+    krows = _knowledge_rows(data, T)
     srows, smean = _speed_rows(data)
     glance = [[t.task, target, measured, _mark(ok)]
-              for t in tasks for target, measured, ok in task_targets(t)]
+              for t in tasks for target, measured, ok in task_targets(t, T)]
     glance += [["knowledge", f"{r[0]}: {r[2]}", r[-3], r[-1]] for r in krows if r[2] != "—"]
-    glance.append(["speed", f"sync loop ≥ {ref.SYNC_STEPS_PER_S:,.0f} steps/s (mean)",
-                   "—" if smean is None else f"{smean:,.1f}",
-                   _mark(None if smean is None else smean >= ref.SYNC_STEPS_PER_S)])
+    if T.steps_per_s is not None:
+        glance.append(["speed", f"sync loop ≥ {T.steps_per_s:,.0f} steps/s (mean)",
+                       "—" if smean is None else f"{smean:,.1f}",
+                       _mark(None if smean is None else smean >= T.steps_per_s)])
     met = sum(row[-1] == _mark(True) for row in glance)
     judged = sum(row[-1] != _mark(None) for row in glance)
     L += ["## Targets at a glance", "",
@@ -500,22 +585,24 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
           _table(["what", "target", "measured", "met"], glance), ""]
 
     L += ["## Tasks", "",
-          "Mean reward per trial (+9.99 on success, −0.01 a step, at most 300 steps; §7.2) "
-          "at the end of babbling (20k), at the last three evaluated checkpoints and at the "
+          f"Mean reward per trial ({T.reward}) "
+          f"at the end of babbling ({T.rise_from // 1000}k), at the last three evaluated "
+          "checkpoints and at the "
           "end, as the mean over the seeds ± its standard error across seeds (§7.3: \"all "
           "error bars are standard error\"); the success rate is the mean over the seeds. The "
           "random policy is evaluated once on the same world, task, trials and trial seed.",
-          "",
-          "Targets (for the core world at 250,000 steps): the final mean reward at least 6 on "
-          "move_block and hit_floor and at least 2 on pickup; on every task at least 2 above "
-          "the random policy; and a curve that rises: each of its last three checkpoints above "
-          "its 20k value.", ""]
+          "", T.note, ""]
     for t in tasks:
-        L += _task_section(t, images.get(t.task))
+        L += _task_section(t, images.get(t.task), T)
 
     L += ["## Knowledge at the end", "",
           "From each seed's `knowledge.json`, beside the reference's figures (Tables 8.1–8.5, "
-          "Fig. 7.9, App. C). *Seeds* counts the seeds meeting the target; the mark judges "
+          "Fig. 7.9, App. C)"
+          + ("" if T.chapter_8 else
+             ", of which only k applies to this world (§7.10.1); the core world's chapter-8 rows "
+             "(u_x at the friction threshold, rel(a) of Tables 8.2–8.5) are left out, and a "
+             "measure whose target is — is shown, not judged")
+          + ". *Seeds* counts the seeds meeting the target; the mark judges "
           "the mean over the seeds (and, where a plan is asked for, every seed having one). "
           "Landmarks are counted per motor and magnitude variable, the initial ones included "
           "as in Table 8.1; a value is narrower than the resolution when a landmark range or "
@@ -523,12 +610,16 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
           "variable's resolution.", "",
           _table(["measure", "reference", "target", *labels, "mean", "seeds", "met"],
                  krows), ""]
+    if not T.chapter_8:
+        L += _landmark_rows(data)
 
     L += ["## DBNs over time", "",
-          f"Change DBNs at every checkpoint of each seed (grey) and their mean ± s.e. across "
-          f"seeds, as Fig. 7.9 (where the reference's count stays about {ref.CHANGE_DBNS}, "
-          "dropping when the hand's actions become reliable and again when DBNs that became "
-          "no plan are deleted at age 100,000).", ""]
+          "Change DBNs at every checkpoint of each seed (grey) and their mean ± s.e. across "
+          + (f"seeds, as Fig. 7.9 (where the reference's count stays about {ref.CHANGE_DBNS}, "
+             "dropping when the hand's actions become reliable and again when DBNs that became "
+             "no plan are deleted at age 100,000)." if T.chapter_8 else
+             "seeds, drawn as Fig. 7.9 draws the core world's (the reference gives no count "
+             "for this world)."), ""]
     if images.get("dbn"):
         L += [f"![change DBNs against steps]({images['dbn']})", ""]
     timelines = {label: [KnowledgePoint(**q) for q in pts]
@@ -537,18 +628,19 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
               for f in ("change_dbns", "magnitude_dbns", "plans", "landmarks")}
     steps = sorted(series["change_dbns"])
     if steps:
-        shown = [s for s in steps if s == 20_000 or s % 50_000 == 0 or s == steps[-1]]
+        shown = [s for s in steps
+                 if s == T.rise_from or s % T.timeline_every == 0 or s == steps[-1]]
         rows = [[f"{s:,}", str(series['change_dbns'][s].n),
                  *(_pm(series[f][s].mean, series[f][s].stderr, "{:.1f}")
                    for f in ("change_dbns", "magnitude_dbns", "plans", "landmarks"))]
                 for s in shown]
         L += [_table(["step", "seeds", "change DBNs", "magnitude DBNs", "plans", "landmarks"],
                      rows), ""]
-    L += [f"Verdict, **change DBNs ≤ {ref.CHANGE_DBN_LIMIT} and not growing after "
-          f"{ref.GROWTH_AFTER:,} steps**: bounded means at most {ref.CHANGE_DBN_LIMIT} change "
+    L += [f"Verdict, **change DBNs ≤ {T.change_dbn_limit} and not growing after "
+          f"{T.growth_after:,} steps**: bounded means at most {T.change_dbn_limit} change "
           "DBNs at the last checkpoint; not growing means that the least-squares line through "
-          f"the counts of the checkpoints from step {ref.GROWTH_AFTER:,} on rises, from the "
-          f"first of them to the last, by at most {ref.GROWTH_TOLERANCE:.0%} of their mean "
+          f"the counts of the checkpoints from step {T.growth_after:,} on rises, from the "
+          f"first of them to the last, by at most {T.growth_tolerance:.0%} of their mean "
           "count (a fitted line, so that one checkpoint just before or after a wave of "
           "deletions does not decide alone). The mean is judged on the steps every seed has.",
           ""]
@@ -560,21 +652,34 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
           "Agent steps per second of each run's loop as the run recorded it (`summary.json` "
           f"`steps_per_s`); the runs this command makes run {cfg.jobs} at a time on {cores} "
           "cores, and a finished run already in the runs directory is reused as it is. "
-          "Target: a mean of at least "
-          f"{ref.SYNC_STEPS_PER_S:,.0f} steps/s over a 250,000-step core run (a benchmark, "
-          "not a test).", "",
+          + (f"Target: a mean of at least {T.steps_per_s:,.0f} steps/s over a 250,000-step "
+             "core run (a benchmark, not a test)." if T.steps_per_s is not None else
+             f"No target for this world (the {ref.SYNC_STEPS_PER_S:,.0f} steps/s target is "
+             "set for a 250,000-step core run)."), "",
           _table(["run", "steps/s", "wall time (s)", "placement"],
                  [*srows, ["mean", "—" if smean is None else f"{smean:,.1f}", "", ""]]),
           "",
-          f"Mean {'—' if smean is None else f'{smean:,.1f}'} steps/s: "
-          + _mark(None if smean is None else smean >= ref.SYNC_STEPS_PER_S)
-          + f" (target ≥ {ref.SYNC_STEPS_PER_S:,.0f}).", ""]
+          f"Mean {'—' if smean is None else f'{smean:,.1f}'} steps/s"
+          + (": " + _mark(None if smean is None else smean >= T.steps_per_s)
+             + f" (target ≥ {T.steps_per_s:,.0f})." if T.steps_per_s is not None else
+             " (not judged)."), ""]
     L += ["## Files", "",
           f"Runs: `{_shown(cfg.runs_dir)}/` ({', '.join(Path(d).name for d in run_dirs)}); "
           f"curves: `{_shown(cfg.runs_dir)}/curve-TASK/curve.csv` (docs/analysis.md); the "
           f"knowledge figures: `{_shown(cfg.runs_dir)}/report.json` (`qlap report --json`).",
           ""]
     return "\n".join(L)
+
+
+def other_pages(out: Path, targets: ref.WorldTargets) -> list[tuple[str, str]]:
+    """The pages core's page links: each other world's ``OUT/W/results.md`` that exists
+    (``--out docs/pong`` beside ``--out docs``). Other worlds' pages link none."""
+    if targets is not ref.CORE_TARGETS:
+        return []
+    return [(f"the same page for {t.world} ({t.seeds} seeds × {t.steps:,} steps)",
+             f"{t.world}/results.md")
+            for t in ref.WORLD_TARGETS.values()
+            if t is not ref.CORE_TARGETS and (Path(out) / t.world / "results.md").is_file()]
 
 
 def build_results(cfg: ResultsConfig, echo: Echo = print) -> int:
@@ -605,7 +710,8 @@ def build_results(cfg: ResultsConfig, echo: Echo = print) -> int:
                                    cfg.eval_seed, cfg.at))
 
     echo("\nknowledge (qlap report --json)")
-    data = report_data(run_dirs)
+    targets = ref.targets_for(cfg.world)
+    data = report_data(run_dirs, targets)
     atomic_write_bytes(Path(cfg.runs_dir) / "report.json",
                        json.dumps(data, indent=1, ensure_ascii=False).encode())
 
@@ -622,12 +728,14 @@ def build_results(cfg: ResultsConfig, echo: Echo = print) -> int:
                  for label, pts in data["timeline"].items()}
     try:
         plot_dbn_counts(timelines, img_dir / "dbn-count.png",
-                        f"change DBNs on {cfg.world}: {len(timelines)} seed(s)")
+                        f"change DBNs on {cfg.world}: {len(timelines)} seed(s)",
+                        targets=targets)
         os.chmod(img_dir / "dbn-count.png", 0o644)
         images["dbn"] = "results/dbn-count.png"
     except ImportError:
         echo("matplotlib is missing (pip install -e .[experiments]): no DBN figure")
-    page = render_page(cfg, results, data, images, run_dirs)
+    page = render_page(cfg, results, data, images, run_dirs,
+                       see_also=other_pages(out, targets))
     _publish(out / "results.md", page.encode())
     echo(f"\nwrote {out / 'results.md'} and {len(images)} image(s) in {img_dir} "
          f"({time.perf_counter() - t0:.0f} s)")

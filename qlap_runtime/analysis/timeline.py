@@ -207,10 +207,12 @@ def run_speed(run_dir: Path) -> dict[str, Any] | None:
 
 
 def plot_dbn_counts(timelines: Mapping[str, Sequence[KnowledgePoint]], path: Path,
-                    title: str, field: str = "change_dbns") -> None:
+                    title: str, field: str = "change_dbns",
+                    targets: ref.WorldTargets = ref.CORE_TARGETS) -> None:
     """Change DBNs against steps, as Fig. 7.9: the mean across runs with standard-error bars
-    (at the steps every run has), each run faintly, the reference's ≈ 250, the limit of 600
-    and the step from which growth is judged. Written as PNG (matplotlib's Agg canvas)."""
+    (at the steps every run has), each run faintly, the reference's ≈ 250 (when the chapter-8
+    figures apply to the world of ``targets``), the limit of 600 and the step from which
+    growth is judged. Written as PNG (matplotlib's Agg canvas)."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7.0, 4.5))
@@ -228,14 +230,15 @@ def plot_dbn_counts(timelines: Mapping[str, Sequence[KnowledgePoint]], path: Pat
                     label=(f"mean of {len(timelines)} runs (± s.e. across runs)" if many
                            else next(iter(timelines), "run")))
     if field == "change_dbns":
-        ax.axhline(ref.CHANGE_DBNS, linestyle=":", color="C2",
-                   label=f"reference ≈ {ref.CHANGE_DBNS} (Fig. 7.9)")
-        ax.axhline(ref.CHANGE_DBN_LIMIT, linestyle="--", color="C3",
-                   label=f"limit {ref.CHANGE_DBN_LIMIT}")
+        if targets.chapter_8:
+            ax.axhline(ref.CHANGE_DBNS, linestyle=":", color="C2",
+                       label=f"reference ≈ {ref.CHANGE_DBNS} (Fig. 7.9)")
+        ax.axhline(targets.change_dbn_limit, linestyle="--", color="C3",
+                   label=f"limit {targets.change_dbn_limit}")
         last = max((p.step for pts in timelines.values() for p in pts), default=0)
-        if last >= ref.GROWTH_AFTER:
-            ax.axvline(ref.GROWTH_AFTER, linestyle="-.", color="0.5", linewidth=0.8,
-                       label=f"growth judged from {ref.GROWTH_AFTER:,}")
+        if last >= targets.growth_after:
+            ax.axvline(targets.growth_after, linestyle="-.", color="0.5", linewidth=0.8,
+                       label=f"growth judged from {targets.growth_after:,}")
     ax.set_xlabel("agent steps")
     ax.set_ylabel({"change_dbns": "change DBNs", "magnitude_dbns": "magnitude DBNs"}.get(
         field, field.replace("_", " ")))

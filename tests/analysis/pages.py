@@ -64,7 +64,8 @@ def core_inputs(tmp_path: Path, world: str = "core"
                                  "wall_time_s": 155.0},
                      "core-s2": None}
     tasks = [_curve("move_block", 2.0, 4.1, 3.817, world),
-             _curve("hit_floor", 1.5, 0.2, -0.423, world), _curve("pickup", 0.3, 2.5, -0.104, world)]
+             _curve("hit_floor", 1.5, 0.2, -0.423, world),
+             _curve("pickup", 0.3, 2.5, -0.104, world)]
     cfg = ResultsConfig(world=world, seeds=[1, 2], steps=250_000, trials=100, every=50_000,
                         at=[20_000, 230_000, 240_000], jobs=2, runs_dir=Path("runs/results"),
                         out=Path("docs"),
