@@ -74,11 +74,13 @@ def core_inputs(tmp_path: Path, world: str = "core"
 
 
 def render(cfg: ResultsConfig, tasks: list[TaskResult], data: dict[str, Any],
-           monkeypatch: pytest.MonkeyPatch, images: dict[str, str] | None = None) -> str:
+           monkeypatch: pytest.MonkeyPatch, images: dict[str, str] | None = None,
+           see_also: list[tuple[str, str]] | None = None) -> str:
     """The page with the date, machine, Python and commit fixed."""
     monkeypatch.setattr(platform, "python_version", lambda: "3.11.7")
     monkeypatch.setattr(platform, "system", lambda: "Linux")
     shown = images if images is not None else {
         **{t.task: f"results/curve-{t.task}.png" for t in tasks}, "dbn": "results/dbn-count.png"}
     return render_page(cfg, tasks, data, shown, [Path("runs/results") / x for x in LABELS],
-                       date="2026-12-02 06:29 UTC", cores=2, commit="e774191")
+                       date="2026-12-02 06:29 UTC", cores=2, commit="e774191",
+                       see_also=see_also or ())
