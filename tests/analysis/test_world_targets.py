@@ -208,3 +208,26 @@ def test_pong_page(tmp_path, monkeypatch):
     assert "**change DBNs ≤ 600 and not growing after 50,000 steps**" in page
     # 2 task targets + 5 judged knowledge rows (the median is shown, not judged)
     assert "6 of 7 judged targets met" in page          # the growth fails (s2 rises 229)
+
+
+def test_script_defaults_follow_the_world():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "learning_results", Path(__file__).resolve().parents[2] / "scripts" /
+        "learning_results.py")
+    assert spec is not None and spec.loader is not None
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+
+    def cfg(*argv: str) -> ResultsConfig:
+        return script.make_config(script.build_parser().parse_args(list(argv)), [])
+
+    core = cfg()
+    assert (core.world, core.steps, core.runs_dir, core.out) == (
+        "core", 250_000, Path("runs/results"), Path("docs"))
+    assert cfg("--world", "core2d").out == Path("docs")           # core-like: as before
+    pong = cfg("--world", "pong", "--jobs", "1")
+    assert (pong.steps, pong.runs_dir, pong.out, pong.jobs, pong.every) == (
+        100_000, Path("runs/pong-results"), Path("docs/pong"), 1, 10_000)
+    assert cfg("--world", "pong", "--steps", "3000", "--out", "/tmp/x").out == Path("/tmp/x")
