@@ -433,8 +433,18 @@ def _landmark_rows(data: Mapping[str, Any]) -> list[str]:
         have = [c for c in counts if c is not None]
         rows.append([pretty(v), *("—" if c is None else str(c) for c in counts),
                      str(max(have)) if have else "—"])
-    return ["Landmarks per variable (initial ones included):", "",
-            _table(["variable", *labels, "max"], rows), ""]
+    out = ["Landmarks per variable (initial ones included):", "",
+           _table(["variable", *labels, "max"], rows), ""]
+    narrow = [[r, pretty(x["variable"]), x["value"], f"{x['width']:.4g}", f"{x['limit']:.4g}",
+               f"{x['width'] / x['limit']:.1%}"]
+              for r in labels for x in runs[r]["narrow"] if x["limit"] > 0]
+    if narrow:
+        out += ["Values narrower than the resolution (the resolution of each seed's final "
+                "checkpoint; a magnitude's is half its §4.4.2 bin, measured on the history, "
+                "so it moves as the history does):", "",
+                _table(["run", "variable", "value", "width", "resolution", "width / resolution"],
+                       narrow), ""]
+    return out
 
 
 def _growth_cell(v: Mapping[str, Any]) -> str:
