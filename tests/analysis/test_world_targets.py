@@ -190,6 +190,8 @@ def test_pong_page(tmp_path, monkeypatch):
     cfg = ResultsConfig(world="pong", seeds=[1, 2, 3, 4, 5], steps=100_000, trials=100,
                         every=10_000, jobs=1, runs_dir=Path("runs/pong-results"),
                         out=Path("docs/pong"))
+    data["runs"]["pong-s2"]["narrow"] = [{"variable": "b_y", "value": "[3.5, 3.7]",
+                                          "width": 0.2, "limit": 0.25}]
     res = pong_result([0.9, 0.8, 1.0, 0.7, 0.6])
     page = render(cfg, [res], data, monkeypatch,
                   {"pong_volley": "results/curve-pong_volley.png"})
@@ -205,6 +207,7 @@ def test_pong_page(tmp_path, monkeypatch):
         assert absent not in page, absent
     assert "No target for this world" in page and "Mean 1,256.9 steps/s (not judged)." in page
     assert "| u | 7 | 10 | 10 |" in page                          # landmarks per variable
+    assert "| pong-s2 | b_y | [3.5, 3.7] | 0.2 | 0.25 | 80.0% |" in page     # 0.2 / 0.25
     assert "**change DBNs ≤ 600 and not growing after 50,000 steps**" in page
     # 2 task targets + 5 judged knowledge rows (the median is shown, not judged)
     assert "6 of 7 judged targets met" in page          # the growth fails (s2 rises 229)
