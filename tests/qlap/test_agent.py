@@ -469,6 +469,40 @@ def test_nrp_needs_a_sufficiently_reliable_plan_for_the_antecedent():
     assert plan_dbns(agent) == [0, 1, 2, 3, 4, 5]
 
 
+@pytest.mark.parametrize("targeted", [False, True])
+def test_nrp_keeps_theta_sr_for_a_targeted_consequent(targeted):
+    """Decision 75: a targeted consequent (§6.3: θ_SR = 0.25 for its own DBN) still needs a plan
+    of the antecedent whose brel(o) was > 0.75 (criterion 1 of §6.2.2), not > 0.25."""
+    from qlap_runtime.qlap.params import Ablations
+    from tests.qlap.toyworld import Spec
+
+    specs = (*SPECS, Spec("y", "magnitude"))
+    abl = Ablations(all_targeted=True) if targeted else Ablations(no_targeted=True)
+    agent = fresh_agent(specs, PARAMS.replace(ablations=abl), landmarks={"x": 5.0})
+    u, x = agent.table.index("u"), agent.table.index("x")
+    xdot, ydot = agent.table.index("x.dot"), agent.table.index("y.dot")
+    add_dbn(agent, 0, CHANGE, (u, 2, 0), (xdot, 2, 0), 40, 2)         # ⟨u→(0,∞) ⇒ ẋ→[+]⟩
+    add_dbn(agent, 1, CHANGE, (u, 0, 0), (xdot, 0, 0), 40, 2)         # ⟨u→(−∞,0) ⇒ ẋ→[−]⟩
+    add_dbn(agent, 2, MAGNITUDE, (xdot, 2, 0), (x, 1, 1), 0, 0, False)   # ⟨ẋ→[+] ⇒ ↑x→[5]⟩
+    add_dbn(agent, 3, MAGNITUDE, (xdot, 0, 0), (x, 1, -1), 0, 0, False)  # ⟨ẋ→[−] ⇒ ↓x→[5]⟩
+    add_dbn(agent, 4, CHANGE, (x, 1, 1), (ydot, 2, 0), 30, 3)         # ⟨↑x→[5] ⇒ ẏ→[+]⟩
+    agent._convert_dbns_to_plans(100)
+    assert plan_dbns(agent) == [0, 1, 2, 3]
+    reach = next(pl for pl in agent.plans.values() if pl.dbn_id == 2)     # a(x, [5]) from below
+    # 4 successes, 8 failures: fewer than the 5 successes brel needs (App. B.1)
+    reach.cpt_s, reach.cpt_f = np.array([4.0]), np.array([8.0])
+    agent._convert_dbns_to_plans(102)
+    assert plan_dbns(agent) == [0, 1, 2, 3]
+    # 6 and 10: brel(o) = 7/18 = 0.39, Pr(p > 0.25) = 1 − beta.cdf(0.25, 7, 11) = 0.893 ≥ 0.8
+    reach.cpt_s, reach.cpt_f = np.array([6.0]), np.array([10.0])
+    agent._convert_dbns_to_plans(104)
+    assert not reach.ever_reliable                        # Pr(p > 0.75) = 0.0006
+    assert plan_dbns(agent) == [0, 1, 2, 3]                 # targeted or not
+    reach.ever_reliable = True
+    agent._convert_dbns_to_plans(106)
+    assert plan_dbns(agent) == [0, 1, 2, 3, 4]
+
+
 # --- the call list across a landmark batch (§5.2.2, §5.4.2) -------------------------------------
 
 
