@@ -12,6 +12,7 @@ batches in flight on the watchdog's board; :class:`Batches` starts the computati
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -23,10 +24,12 @@ from ..bus.schema import BatchContext, DeltaMsg
 from ..qlap.delta import Delta
 from ..qlap.learner import ModelLearner
 from .actor import Actor, to_thread
+from .batch_process import BatchProcess, BatchProcessError
 from .context import RunContext
 from .inbox import DeltaInbox, RunEnded, StepInbox
 from .rules import batchctx_rule
 
+log = logging.getLogger("qlap.batches")
 
 class DeltaOutbox:
     """One actor's ``delta/<kind>`` topic: published, logged, and tracked while in flight."""
@@ -106,6 +109,9 @@ class Batches:
         self.inline = ctx.params.batch_lag == 0 and not ctx.realtime
         """L = 0 in lockstep: the batch is computed before the step ends (Algorithm 2)."""
         self.times: list[float] = []
+        self.process: BatchProcess | None = None
+        """The worker process the batches in the background go to (docs/decisions.md 80;
+        None: a worker thread)."""
 
     async def context(self, t: int) -> BatchContext | None:
         """The executor's state the batch at ``t`` reads (:func:`context_before`)."""
@@ -162,9 +168,26 @@ class Batches:
         for out in outs:
             out.publish(parts[out.kind])
 
+    def compute_away(self, work: ModelLearner, t: int, kinds: tuple[str, ...]
+                     ) -> dict[str, Delta]:
+        """:meth:`compute` in :attr:`process` (in this thread if it failed: the copy is
+        unchanged, the answer the same)."""
+        assert self.process is not None
+        t0 = time.perf_counter()
+        try:
+            parts = self.process.compute(work, t, kinds)
+        except BatchProcessError as exc:
+            log.warning("%s; batches go on in threads", exc)
+            self.process.close()
+            self.process = None
+            return self.compute(work, t, kinds)
+        self.times.append(time.perf_counter() - t0)
+        return parts
+
     async def background(self, work: ModelLearner, t: int, kinds: tuple[str, ...],
                          outs: list[DeltaOutbox]) -> None:
-        self.publish(outs, await to_thread(self.compute, work, t, kinds))
+        fn = self.compute if self.process is None else self.compute_away
+        self.publish(outs, await to_thread(fn, work, t, kinds))
 
     def result(self) -> dict[str, Any]:
         return {"batches": len(self.times), "batch_s": round(sum(self.times), 3)}
