@@ -41,7 +41,7 @@ class BatchProcessError(RuntimeError):
 def write_frame(out: IO[bytes], header: dict[str, Any],
                 arrays: dict[str, np.ndarray] | None = None) -> None:
     """``header`` and ``arrays`` (listed in the header's ``arrays``) as one frame."""
-    items = [(k, np.ascontiguousarray(v)) for k, v in (arrays or {}).items()]
+    items = [(k, np.asarray(v, order="C")) for k, v in (arrays or {}).items()]
     for k, v in items:
         if v.dtype.hasobject:
             raise TypeError(f"array {k!r} holds Python objects")
@@ -49,7 +49,8 @@ def write_frame(out: IO[bytes], header: dict[str, Any],
                                             for k, v in items]}).encode()
     out.write(LENGTH.pack(len(head)) + head)
     for _, v in items:
-        out.write(memoryview(v).cast("B"))
+        if v.size:
+            out.write(memoryview(v.reshape(-1)).cast("B"))
     out.flush()
 
 

@@ -112,6 +112,8 @@ class Batches:
         self.process: BatchProcess | None = None
         """The worker process the batches in the background go to (docs/decisions.md 80;
         None: a worker thread)."""
+        self.away = 0
+        """Batches computed in :attr:`process`."""
 
     async def context(self, t: int) -> BatchContext | None:
         """The executor's state the batch at ``t`` reads (:func:`context_before`)."""
@@ -182,6 +184,7 @@ class Batches:
             self.process = None
             return self.compute(work, t, kinds)
         self.times.append(time.perf_counter() - t0)
+        self.away += 1
         return parts
 
     async def background(self, work: ModelLearner, t: int, kinds: tuple[str, ...],
@@ -190,7 +193,8 @@ class Batches:
         self.publish(outs, await to_thread(fn, work, t, kinds))
 
     def result(self) -> dict[str, Any]:
-        return {"batches": len(self.times), "batch_s": round(sum(self.times), 3)}
+        return {"batches": len(self.times), "batch_s": round(sum(self.times), 3),
+                **({"batches_in_process": self.away} if self.away else {})}
 
 
 def hands_over(ctx: RunContext) -> bool:
