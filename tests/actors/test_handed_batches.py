@@ -65,6 +65,8 @@ def test_embedded_learners_without_a_learner_equal_the_synchronous_loop(tmp_path
     summary = run_embedded(ctx)
     assert (tmp_path / "knowledge.json").read_text() == expected
     assert summary["rejected_messages"] == 0
+    learners = summary["actors"]["contingency"]          # in the worker process (decision 80)
+    assert learners["batches_in_process"] == learners["batches"] > 0
     # The statistics part comes from the executor now, of the checkpoint's own step.
     ckpt = tmp_path / "checkpoints" / "step-0002000"
     assert (ckpt / "stats.json").is_file() and not statistics_missing(ckpt)
