@@ -119,7 +119,7 @@ class BatchLinks:
         t copies, which the planner compiles."""
         if t in self.plans.asked:
             # The planner in this process (RunContext.groups): the agent in memory.
-            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t)
+            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t, self.ctx.realtime)
                               if self.ctx.together("executor", "planner")
                               else plan_request(agent, t))
 

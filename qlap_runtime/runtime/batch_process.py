@@ -88,9 +88,10 @@ class BatchProcess:
     (one batch at a time) and :meth:`close` ends the process."""
 
     def __init__(self) -> None:
+        # This process's code (-P: not the working directory's tree before it).
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "qlap_runtime.runtime.batch_process"],
+            [sys.executable, "-P", "-m", "qlap_runtime.runtime.batch_process"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
         self.lock = threading.Lock()
         self.times: list[float] = []
