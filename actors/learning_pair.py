@@ -54,12 +54,12 @@ async def run_handed(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]
     state this pair's own learner would have had (:data:`~qlap_runtime.runtime.batches.
     HANDED`). The pair then takes only those copies — no ``qstate``, no deltas, no per-step
     learning — and computes the batch on each, with ``batchctx(t − 1)`` as before; the
-    executor writes the checkpoints' statistics part. The batches compute in a worker
-    process (docs/decisions.md 80; ``QLAP_BATCH_PROCESS=0``: in threads)."""
+    executor writes the checkpoints' statistics part. With ``QLAP_BATCH_PROCESS=1`` the
+    batches compute in a worker process (docs/decisions.md 80), else in threads."""
     HANDED.discard(ctx.run_id)                  # an earlier run's, of the same id
     with LearnerActor(session, ctx, "contingency", handed=True) as host, \
             LearnerActor(session, ctx, "landmarks", handed=True) as guest, ExitStack() as stack:
-        if os.environ.get("QLAP_BATCH_PROCESS", "1") != "0":
+        if os.environ.get("QLAP_BATCH_PROCESS") == "1":
             host.batches.process = process = BatchProcess()
             stack.callback(process.close)
         await host.start()

@@ -96,6 +96,8 @@ class BatchProcess:
         self.lock = threading.Lock()
         self.times: list[float] = []
         """Each batch's time in the worker (rebuilding the copy and computing)."""
+        self.peak_mib: float | None = None
+        """The worker's peak resident memory, read at :meth:`close` (Linux)."""
 
     def compute(self, work: ModelLearner, step: int,
                 kinds: tuple[str, ...]) -> dict[str, Delta]:
@@ -122,6 +124,7 @@ class BatchProcess:
 
     def close(self) -> None:
         """End the worker (its input closes; it exits at the end of the stream)."""
+        self.peak_mib = self.peak_mib or peak_mib(self.proc.pid)
         if self.proc.stdin is not None and not self.proc.stdin.closed:
             try:
                 self.proc.stdin.close()
@@ -134,6 +137,18 @@ class BatchProcess:
             self.proc.wait()
         if self.proc.stdout is not None:
             self.proc.stdout.close()
+
+
+def peak_mib(pid: int) -> float | None:
+    """A live process's peak resident memory (``VmHWM``), None where /proc has none."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return round(int(line.split()[1]) / 1024, 1)
+    except OSError:
+        pass
+    return None
 
 
 def serve(inp: IO[bytes], out: IO[bytes]) -> None:

@@ -24,7 +24,7 @@ from ..bus.schema import BatchContext, DeltaMsg
 from ..qlap.delta import Delta
 from ..qlap.learner import ModelLearner
 from .actor import Actor, to_thread
-from .batch_process import BatchProcess, BatchProcessError
+from .batch_process import BatchProcess, BatchProcessError, peak_mib
 from .context import RunContext
 from .inbox import DeltaInbox, RunEnded, StepInbox
 from .rules import batchctx_rule
@@ -114,6 +114,7 @@ class Batches:
         None: a worker thread)."""
         self.away = 0
         """Batches computed in :attr:`process`."""
+        self.away_mib: float | None = None
 
     async def context(self, t: int) -> BatchContext | None:
         """The executor's state the batch at ``t`` reads (:func:`context_before`)."""
@@ -193,8 +194,11 @@ class Batches:
         self.publish(outs, await to_thread(fn, work, t, kinds))
 
     def result(self) -> dict[str, Any]:
+        if self.process is not None:           # alive (a batch may still be in flight)
+            self.away_mib = peak_mib(self.process.proc.pid)
+        away = {"batches_in_process": self.away, "batch_process_peak_mib": self.away_mib}
         return {"batches": len(self.times), "batch_s": round(sum(self.times), 3),
-                **({"batches_in_process": self.away} if self.away else {})}
+                **(away if self.away else {})}
 
 
 def hands_over(ctx: RunContext) -> bool:

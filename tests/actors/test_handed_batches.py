@@ -59,6 +59,7 @@ def test_embedded_learners_without_a_learner_equal_the_synchronous_loop(tmp_path
         raise AssertionError("a learning actor made a learner of its own")
 
     monkeypatch.setattr(actors.learning, "start_learner", no_learner)
+    monkeypatch.setenv("QLAP_BATCH_PROCESS", "1")           # batches in a worker process
     params = BASE.replace(batch_lag=200)
     expected = sync_knowledge("core2d", params, seed=4)
     ctx = context(tmp_path, "core2d", params, 4, "t-handed").with_(checkpoint_every=1000)
