@@ -202,9 +202,9 @@ class Files:
             self.metrics.after_step(t + 1, agent)
         if p is not None and ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
             root, keep = Path(ctx.out) / "checkpoints", ctx.keep_checkpoints
-            # A deep copy now (the agent goes on), written in the writer's thread.
-            self.writer.start(save_step_checkpoint, copy.deepcopy(agent), root, t + 1,
-                              ctx.world, keep)
+            if keep != 0:                       # a deep copy now, written in the writer's thread
+                self.writer.start(save_step_checkpoint, copy.deepcopy(agent), root, t + 1,
+                                  ctx.world, keep)
             self.last_saved = (agent.step_count, changes,
                                None if keep == 0 else root / step_name(t + 1))
 
