@@ -6,6 +6,7 @@ Algorithm 2 line 15)."""
 from __future__ import annotations
 
 import base64
+import json
 import math
 import sys
 import tempfile
@@ -17,7 +18,7 @@ import numpy as np
 
 from qlap_runtime.bus.schema import BatchContext, PlanRequest, QState, Sense, WorldView
 from qlap_runtime.qlap.agent import Agent
-from qlap_runtime.qlap.checkpoint import load_agent, save_agent
+from qlap_runtime.qlap.checkpoint import learner_state, load_agent, restore_learner, save_agent
 from qlap_runtime.qlap.delta import AddLandmark, Delta
 from qlap_runtime.qlap.perception import MAX_ABS_VALUE, InvalidObservation, Percept, Perception
 from qlap_runtime.qlap.plan_delta import PlanDelta
@@ -163,21 +164,31 @@ class LocalRequests:
     """The embedded placement's ``planreq``: the executor and the planner share a process, so
     the request hands over a private copy of the agent (:meth:`Agent.planning_copy`, deep: the
     executor goes on while the planner compiles) instead of its files; the message only says
-    so (``local``), and stays in the replay log like any other."""
+    so (``local``), and stays in the replay log like any other. ``light`` (the realtime
+    clock): the learner goes as its checkpoint state, taken in a few ms on the world's tick
+    and rebuilt by :meth:`take` in the planner's thread (docs/decisions.md 82)."""
 
     def __init__(self) -> None:
-        self.agents: dict[tuple[str, int], Agent] = {}
+        self.agents: dict[tuple[str, int], tuple[Agent, Any]] = {}
         self.lock = threading.Lock()
 
-    def put(self, run_id: str, agent: Agent, step: int) -> PlanRequest:
-        copy = agent.planning_copy(agent.learner.batch_copy(), deep=True)
+    def put(self, run_id: str, agent: Agent, step: int, light: bool = False) -> PlanRequest:
+        if light:
+            meta, arrays = learner_state(agent.learner)
+            state = (json.loads(json.dumps(meta)), {k: v.copy() for k, v in arrays.items()})
+            copy = agent.planning_copy(agent.learner, deep=True)    # its learner: take's
+        else:
+            state, copy = None, agent.planning_copy(agent.learner.batch_copy(), deep=True)
         with self.lock:
-            self.agents[(run_id, step)] = copy
+            self.agents[(run_id, step)] = (copy, state)
         return PlanRequest(step, local=True)
 
     def take(self, run_id: str, step: int) -> Agent:
         with self.lock:
-            return self.agents.pop((run_id, step))
+            copy, state = self.agents.pop((run_id, step))
+        if state is not None:
+            copy.learner = restore_learner(*state)
+        return copy
 
 
 LOCAL = LocalRequests()

@@ -14,6 +14,7 @@ from, what it tells the batch actors and the planner, its controls and display, 
 
 from __future__ import annotations
 
+import copy
 import time
 from pathlib import Path
 from typing import Any
@@ -28,10 +29,12 @@ from qlap_runtime.qlap.checkpoint import (
     load_agent,
     save_final_checkpoint,
     save_step_checkpoint,
+    step_name,
 )
 from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.plan_delta import PlanDelta
 from qlap_runtime.runtime.actor import Actor, Resume
+from qlap_runtime.runtime.background import Background
 from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.controls import RunControl
 from qlap_runtime.runtime.lockstep import DeltaBook, batch_kinds
@@ -116,7 +119,7 @@ class BatchLinks:
         t copies, which the planner compiles."""
         if t in self.plans.asked:
             # The planner in this process (RunContext.groups): the agent in memory.
-            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t)
+            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t, self.ctx.realtime)
                               if self.ctx.together("executor", "planner")
                               else plan_request(agent, t))
 
@@ -188,6 +191,8 @@ class Files:
         """The observations rejected (``step t: why``), a snapshot's ones first."""
         # The last periodic checkpoint: (agent step, agent commands applied by then, its path).
         self.last_saved: tuple[int, int, Path | None] = (-1, -1, None)
+        self.writer = Background("checkpoint")
+        """Writes the periodic checkpoints off the step chain (docs/decisions.md 81)."""
         self.closed = False
 
     def after_step(self, t: int, p: Percept | None, changes: int) -> None:
@@ -196,8 +201,12 @@ class Files:
         if self.metrics is not None:
             self.metrics.after_step(t + 1, agent)
         if p is not None and ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
-            self.last_saved = (agent.step_count, changes, save_step_checkpoint(
-                agent, Path(ctx.out) / "checkpoints", t + 1, ctx.world, ctx.keep_checkpoints))
+            root, keep = Path(ctx.out) / "checkpoints", ctx.keep_checkpoints
+            if keep != 0:                       # a deep copy now, written in the writer's thread
+                self.writer.start(save_step_checkpoint, copy.deepcopy(agent), root, t + 1,
+                                  ctx.world, keep)
+            self.last_saved = (agent.step_count, changes,
+                               None if keep == 0 else root / step_name(t + 1))
 
     def result(self, steps_done: int, quit_at: int | None) -> dict[str, Any]:
         """The executor's part of its result."""
@@ -208,6 +217,7 @@ class Files:
     def final(self, steps: int, changes: int) -> None:
         """``knowledge.json``, ``checkpoints/final`` and the executor's summary."""
         ctx, agent = self.ctx, self.agent
+        self.writer.wait()
         if ctx.out is None:
             return
         out = Path(ctx.out)
@@ -225,7 +235,8 @@ class Files:
         return time.perf_counter() - self.t_start
 
     def close(self, steps: int) -> None:
-        """The metrics log ends (once)."""
+        """The metrics log ends (once); the checkpoint in flight is written."""
+        self.writer.wait()
         if not self.closed and self.metrics is not None:
             self.metrics.finish(steps, self.agent)
         self.closed = True

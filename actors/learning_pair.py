@@ -6,10 +6,13 @@ docs/decisions.md 72).
 
 from __future__ import annotations
 
+import os
+from contextlib import ExitStack
 from typing import Any
 
 import trio
 
+from qlap_runtime.runtime.batch_process import BatchProcess
 from qlap_runtime.runtime.batches import ENDED, HANDED, hands_over
 from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.lockstep import batch_kinds
@@ -51,10 +54,14 @@ async def run_handed(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]
     state this pair's own learner would have had (:data:`~qlap_runtime.runtime.batches.
     HANDED`). The pair then takes only those copies — no ``qstate``, no deltas, no per-step
     learning — and computes the batch on each, with ``batchctx(t − 1)`` as before; the
-    executor writes the checkpoints' statistics part."""
+    executor writes the checkpoints' statistics part. With ``QLAP_BATCH_PROCESS=1`` the
+    batches compute in a worker process (docs/decisions.md 80), else in threads."""
     HANDED.discard(ctx.run_id)                  # an earlier run's, of the same id
     with LearnerActor(session, ctx, "contingency", handed=True) as host, \
-            LearnerActor(session, ctx, "landmarks", handed=True) as guest:
+            LearnerActor(session, ctx, "landmarks", handed=True) as guest, ExitStack() as stack:
+        if os.environ.get("QLAP_BATCH_PROCESS") == "1":
+            host.batches.process = process = BatchProcess()
+            stack.callback(process.close)
         await host.start()
         await guest.start()
         async with trio.open_nursery() as host.nursery:

@@ -12,6 +12,7 @@ batches in flight on the watchdog's board; :class:`Batches` starts the computati
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -23,10 +24,12 @@ from ..bus.schema import BatchContext, DeltaMsg
 from ..qlap.delta import Delta
 from ..qlap.learner import ModelLearner
 from .actor import Actor, to_thread
+from .batch_process import BatchProcess, BatchProcessError, peak_mib
 from .context import RunContext
 from .inbox import DeltaInbox, RunEnded, StepInbox
 from .rules import batchctx_rule
 
+log = logging.getLogger("qlap.batches")
 
 class DeltaOutbox:
     """One actor's ``delta/<kind>`` topic: published, logged, and tracked while in flight."""
@@ -106,6 +109,12 @@ class Batches:
         self.inline = ctx.params.batch_lag == 0 and not ctx.realtime
         """L = 0 in lockstep: the batch is computed before the step ends (Algorithm 2)."""
         self.times: list[float] = []
+        self.process: BatchProcess | None = None
+        """The worker process the batches in the background go to (docs/decisions.md 80;
+        None: a worker thread)."""
+        self.away = 0
+        """Batches computed in :attr:`process`."""
+        self.away_mib: float | None = None
 
     async def context(self, t: int) -> BatchContext | None:
         """The executor's state the batch at ``t`` reads (:func:`context_before`)."""
@@ -162,12 +171,34 @@ class Batches:
         for out in outs:
             out.publish(parts[out.kind])
 
+    def compute_away(self, work: ModelLearner, t: int, kinds: tuple[str, ...]
+                     ) -> dict[str, Delta]:
+        """:meth:`compute` in :attr:`process` (in this thread if it failed: the copy is
+        unchanged, the answer the same)."""
+        assert self.process is not None
+        t0 = time.perf_counter()
+        try:
+            parts = self.process.compute(work, t, kinds)
+        except BatchProcessError as exc:
+            log.warning("%s; batches go on in threads", exc)
+            self.process.close()
+            self.process = None
+            return self.compute(work, t, kinds)
+        self.times.append(time.perf_counter() - t0)
+        self.away += 1
+        return parts
+
     async def background(self, work: ModelLearner, t: int, kinds: tuple[str, ...],
                          outs: list[DeltaOutbox]) -> None:
-        self.publish(outs, await to_thread(self.compute, work, t, kinds))
+        fn = self.compute if self.process is None else self.compute_away
+        self.publish(outs, await to_thread(fn, work, t, kinds))
 
     def result(self) -> dict[str, Any]:
-        return {"batches": len(self.times), "batch_s": round(sum(self.times), 3)}
+        if self.process is not None:           # alive (a batch may still be in flight)
+            self.away_mib = peak_mib(self.process.proc.pid)
+        away = {"batches_in_process": self.away, "batch_process_peak_mib": self.away_mib}
+        return {"batches": len(self.times), "batch_s": round(sum(self.times), 3),
+                **(away if self.away else {})}
 
 
 def hands_over(ctx: RunContext) -> bool:

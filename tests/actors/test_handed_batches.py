@@ -59,12 +59,15 @@ def test_embedded_learners_without_a_learner_equal_the_synchronous_loop(tmp_path
         raise AssertionError("a learning actor made a learner of its own")
 
     monkeypatch.setattr(actors.learning, "start_learner", no_learner)
+    monkeypatch.setenv("QLAP_BATCH_PROCESS", "1")           # batches in a worker process
     params = BASE.replace(batch_lag=200)
     expected = sync_knowledge("core2d", params, seed=4)
     ctx = context(tmp_path, "core2d", params, 4, "t-handed").with_(checkpoint_every=1000)
     summary = run_embedded(ctx)
     assert (tmp_path / "knowledge.json").read_text() == expected
     assert summary["rejected_messages"] == 0
+    learners = summary["actors"]["contingency"]          # in the worker process (decision 80)
+    assert learners["batches_in_process"] == learners["batches"] > 0
     # The statistics part comes from the executor now, of the checkpoint's own step.
     ckpt = tmp_path / "checkpoints" / "step-0002000"
     assert (ckpt / "stats.json").is_file() and not statistics_missing(ckpt)

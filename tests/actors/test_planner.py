@@ -35,3 +35,25 @@ def test_the_planner_compiles_every_batch_and_the_agent_learns_what_the_sync_loo
     got = (tmp_path / "knowledge.json").read_text()
     assert sum(len(a["plans"]) for a in json.loads(got)["actions"]) >= 3, "too few plans"
     assert got == expected
+
+
+def test_a_light_request_compiles_what_a_deep_copy_compiles(tmp_path, monkeypatch):
+    """Under the realtime clock the in-process request carries the learner's checkpoint state,
+    rebuilt in the planner's thread (docs/decisions.md 82); forced in lockstep, the knowledge
+    is still the synchronous loop's."""
+    from actors.convert import LocalRequests
+
+    put, lights = LocalRequests.put, []
+
+    def light(self, run_id, agent, step, light=False):
+        lights.append(step)
+        return put(self, run_id, agent, step, True)
+
+    monkeypatch.setattr(LocalRequests, "put", light)
+    world = worlds.make("core2d")
+    params = params_for_world(world, PARAMS)
+    world.close()
+    expected = agent_run.sync_knowledge("core2d", STEPS, 5, params)
+    run_embedded(RunContext("t-light", "core2d", STEPS, 5, params, out=tmp_path))
+    assert lights == list(range(500, STEPS, 500))
+    assert (tmp_path / "knowledge.json").read_text() == expected
