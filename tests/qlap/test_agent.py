@@ -439,11 +439,13 @@ def test_a_plan_never_called_gives_its_slot_up_after_dbn_max_age():
     assert plan_dbns(agent) == [1]
 
 
-def test_nrp_needs_a_sufficiently_reliable_plan_for_the_antecedent():
+def nrp_agent(params: Params) -> Agent:
+    """Motor DBNs 0–1 for a(ẋ, [±]), magnitude DBNs 2–3 reaching x = 5 from below and from
+    above, and DBN 4 ⟨↑x→[5] ⇒ ẏ→[+]⟩, whose antecedent only DBN 2's plan achieves."""
     from tests.qlap.toyworld import Spec
 
     specs = (*SPECS, Spec("y", "magnitude"))
-    agent = fresh_agent(specs, PARAMS, landmarks={"x": 5.0})
+    agent = fresh_agent(specs, params, landmarks={"x": 5.0})
     u, x = agent.table.index("u"), agent.table.index("x")
     xdot, ydot = agent.table.index("x.dot"), agent.table.index("y.dot")
     add_dbn(agent, 0, CHANGE, (u, 2, 0), (xdot, 2, 0), 40, 2)         # ⟨u→(0,∞) ⇒ ẋ→[+]⟩
@@ -451,6 +453,12 @@ def test_nrp_needs_a_sufficiently_reliable_plan_for_the_antecedent():
     add_dbn(agent, 2, MAGNITUDE, (xdot, 2, 0), (x, 1, 1), 0, 0, False)   # ⟨ẋ→[+] ⇒ ↑x→[5]⟩
     add_dbn(agent, 3, MAGNITUDE, (xdot, 0, 0), (x, 1, -1), 0, 0, False)  # ⟨ẋ→[−] ⇒ ↓x→[5]⟩
     add_dbn(agent, 4, CHANGE, (x, 1, 1), (ydot, 2, 0), 30, 3)         # ⟨↑x→[5] ⇒ ẏ→[+]⟩
+    return agent
+
+
+def test_nrp_needs_a_sufficiently_reliable_plan_for_the_antecedent():
+    agent = nrp_agent(PARAMS)
+    xdot, ydot = agent.table.index("x.dot"), agent.table.index("y.dot")
     add_dbn(agent, 5, CHANGE, (xdot, 2, 0), (ydot, 0, 0), 30, 3)      # ⟨ẋ→[+] ⇒ ẏ→[−]⟩
     agent._convert_dbns_to_plans(100)
     # motor antecedents convert; magnitude DBNs once a(ẋ, [±]) has a plan (same batch, since
@@ -474,18 +482,9 @@ def test_nrp_keeps_theta_sr_for_a_targeted_consequent(targeted):
     """Decision 75: a targeted consequent (§6.3: θ_SR = 0.25 for its own DBN) still needs a plan
     of the antecedent whose brel(o) was > 0.75 (criterion 1 of §6.2.2), not > 0.25."""
     from qlap_runtime.qlap.params import Ablations
-    from tests.qlap.toyworld import Spec
 
-    specs = (*SPECS, Spec("y", "magnitude"))
     abl = Ablations(all_targeted=True) if targeted else Ablations(no_targeted=True)
-    agent = fresh_agent(specs, PARAMS.replace(ablations=abl), landmarks={"x": 5.0})
-    u, x = agent.table.index("u"), agent.table.index("x")
-    xdot, ydot = agent.table.index("x.dot"), agent.table.index("y.dot")
-    add_dbn(agent, 0, CHANGE, (u, 2, 0), (xdot, 2, 0), 40, 2)         # ⟨u→(0,∞) ⇒ ẋ→[+]⟩
-    add_dbn(agent, 1, CHANGE, (u, 0, 0), (xdot, 0, 0), 40, 2)         # ⟨u→(−∞,0) ⇒ ẋ→[−]⟩
-    add_dbn(agent, 2, MAGNITUDE, (xdot, 2, 0), (x, 1, 1), 0, 0, False)   # ⟨ẋ→[+] ⇒ ↑x→[5]⟩
-    add_dbn(agent, 3, MAGNITUDE, (xdot, 0, 0), (x, 1, -1), 0, 0, False)  # ⟨ẋ→[−] ⇒ ↓x→[5]⟩
-    add_dbn(agent, 4, CHANGE, (x, 1, 1), (ydot, 2, 0), 30, 3)         # ⟨↑x→[5] ⇒ ẏ→[+]⟩
+    agent = nrp_agent(PARAMS.replace(ablations=abl))
     agent._convert_dbns_to_plans(100)
     assert plan_dbns(agent) == [0, 1, 2, 3]
     reach = next(pl for pl in agent.plans.values() if pl.dbn_id == 2)     # a(x, [5]) from below
