@@ -6,13 +6,12 @@ docs/decisions.md 72).
 
 from __future__ import annotations
 
-import os
 from contextlib import ExitStack
 from typing import Any
 
 import trio
 
-from qlap_runtime.runtime.batch_process import BatchProcess
+from qlap_runtime.runtime.batch_process import BatchProcess, wanted
 from qlap_runtime.runtime.batches import ENDED, HANDED, hands_over
 from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.lockstep import batch_kinds
@@ -59,7 +58,7 @@ async def run_handed(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]
     HANDED.discard(ctx.run_id)                  # an earlier run's, of the same id
     with LearnerActor(session, ctx, "contingency", handed=True) as host, \
             LearnerActor(session, ctx, "landmarks", handed=True) as guest, ExitStack() as stack:
-        if os.environ.get("QLAP_BATCH_PROCESS") == "1":
+        if wanted():
             host.batches.process = process = BatchProcess()
             stack.callback(process.close)
         await host.start()

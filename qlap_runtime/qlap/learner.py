@@ -78,10 +78,10 @@ class ModelLearner:
         # is a follower: it keeps the DBN statistics but not the pair statistics of DBN search.
         self.auto_batches = True
         self.follower = False
-        self.keeps_pairs: bool | None = None
-        """Whether each step updates the pair and window statistics of DBN search (None:
-        unless a follower). The embedded placement's follower keeps them: the learning
-        actors take their batch copies from it (docs/decisions.md 72)."""
+        self.keeps_pairs = False
+        """A follower that keeps the pair and window statistics of DBN search all the same:
+        the embedded placement's, whose batch copies the learning actors take
+        (docs/decisions.md 72)."""
         self._expiry: deque[tuple[int, DBN, list]] = deque()
         self._mag_active: dict[int, list[DBN]] = {}
         self._reindex()
@@ -113,8 +113,8 @@ class ModelLearner:
 
     @property
     def pairs_kept(self) -> bool:
-        """Whether the pair and window statistics are kept (:attr:`keeps_pairs`)."""
-        return not self.follower if self.keeps_pairs is None else self.keeps_pairs
+        """Whether each step updates the pair and window statistics (:attr:`keeps_pairs`)."""
+        return not self.follower or self.keeps_pairs
 
     def _drop_open_windows(self) -> None:
         if self.pairs_kept:

@@ -34,6 +34,16 @@ from ..qlap.learner import ModelLearner
 LENGTH = struct.Struct(">Q")
 
 
+ENV = "QLAP_BATCH_PROCESS"
+"""Set to ``1``, the embedded placement's handed batches compute in a worker process (off by
+default: it costs ~270 MiB for core, docs/decisions.md 80)."""
+
+
+def wanted() -> bool:
+    """Whether the run asks for the batch worker process (:data:`ENV`)."""
+    return os.environ.get(ENV) == "1"
+
+
 class BatchProcessError(RuntimeError):
     """The worker process failed or died (its message says why)."""
 
