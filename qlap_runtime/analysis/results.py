@@ -440,8 +440,8 @@ def _landmark_rows(data: Mapping[str, Any]) -> list[str]:
               for r in labels for x in runs[r]["narrow"] if x["limit"] > 0]
     if narrow:
         out += ["Values narrower than the resolution (the resolution of each seed's final "
-                "checkpoint; a magnitude's is half its §4.4.2 bin, measured on the history, "
-                "so it moves as the history does):", "",
+                "checkpoint: the world's declared one, else for a magnitude half its §4.4.2 "
+                "bin, measured on the history and fixed at the end of babbling):", "",
                 _table(["run", "variable", "value", "width", "resolution", "width / resolution"],
                        narrow), ""]
     return out

@@ -168,6 +168,10 @@ class Perception:
         self.hist_len = 0
         self.hist_head = 0
         self.steps_seen = 0
+        self._estimated = [v.index for v in table
+                           if v.kind is Kind.MAGNITUDE and v.resolution is None]
+        self.fixed_resolution: dict[int, float] = {}
+        """The estimated resolutions, fixed at the end of babbling (:meth:`resolution`)."""
 
     # -- landmarks --------------------------------------------------------------------------
     def _rebuild(self) -> None:
@@ -402,6 +406,17 @@ class Perception:
         self.hist_len = min(self.hist_len + 1, cap)
         self.prev_x = x
         self.prev_q = q
+        if self.steps_seen == self.params.babble_steps and self._estimated:
+            self.fix_resolutions()
+
+    def fix_resolutions(self) -> None:
+        """Fix the estimated resolution of every magnitude that declares none at its value
+        now, from the history of the babbling period (docs/decisions.md 77); one that never
+        changed (estimate 0) stays estimated."""
+        for var in self._estimated:
+            r = 0.5 * self.bin_size(var)
+            if r > 0:
+                self.fixed_resolution[var] = r
 
     def ingest(self, p: Percept) -> Percept:
         """Record a percept computed by another perception with the same landmarks (the
@@ -493,14 +508,16 @@ class Perception:
     def resolution(self, var: int) -> float:
         """The smallest distinction worth a landmark on ``var``: the world's declared
         resolution, else a motor's ``Params.motor_resolution`` of its range and a magnitude's
-        average change per step (half the §4.4.2 bin). No learned landmark is narrower, and
-        none closer to another (docs/decisions.md)."""
+        average change per step (half the §4.4.2 bin), estimated on the history until the end
+        of babbling and fixed from then on (:meth:`fix_resolutions`). No learned landmark is
+        narrower, and none closer to another (docs/decisions.md 35, 77)."""
         v = self.table[var]
         if v.resolution is not None:
             return v.resolution
         if v.kind is Kind.MOTOR:
             return self.params.motor_resolution * (float(v.high) - float(v.low))
-        return 0.5 * self.bin_size(var)
+        fixed = self.fixed_resolution.get(var)
+        return fixed if fixed is not None else 0.5 * self.bin_size(var)
 
     def satisfied_fraction(self) -> np.ndarray:
         """Fraction of the stored history's steps in which each consequent event was satisfied
@@ -533,6 +550,8 @@ class Perception:
         meta = {"spaces": [s.to_json() for s in self.spaces], "hist_len": self.hist_len,
                 "hist_head": self.hist_head, "steps_seen": self.steps_seen,
                 "all_seen": self._all_seen}
+        if self.fixed_resolution:
+            meta["fixed_resolution"] = [[v, r] for v, r in sorted(self.fixed_resolution.items())]
         arrays = {"prev_x": self.prev_x, "prev_q": self.prev_q, "hist_x": self.hist_x,
                   "hist_q": self.hist_q}
         return meta, arrays
@@ -548,3 +567,4 @@ class Perception:
         self.hist_q = arrays["hist_q"].astype(np.int16)
         self.hist_len, self.hist_head = int(meta["hist_len"]), int(meta["hist_head"])
         self.steps_seen, self._all_seen = int(meta["steps_seen"]), bool(meta["all_seen"])
+        self.fixed_resolution = {int(v): float(r) for v, r in meta.get("fixed_resolution", [])}

@@ -86,3 +86,19 @@ def test_processes_lockstep_equals_the_synchronous_loop(tmp_path, groups, proces
     assert summary["steps"] == STEPS
     assert sorted(summary["actors"]) == sorted(
         ["world", "perception", "contingency", "landmarks", "planner", "executor"])
+
+
+def test_a_resolution_fixed_at_the_end_of_babbling_is_the_same_in_every_placement(tmp_path):
+    """A Gymnasium world declares no resolution: its magnitudes' estimates are fixed on the
+    step that ends babbling (docs/decisions.md 77), from the same history in the embedded
+    placement with a batch lag as in the synchronous loop, so the knowledge is the same. At
+    the end (3,000 steps) the history would give cos_theta 0.1192 and theta_dot 0.4935; the
+    knowledge keeps 0.1155 and 0.4729, the estimates at step 1,500."""
+    params = BASE.replace(batch_lag=200)
+    expected = sync_knowledge("gym:Pendulum-v1", params, seed=3)
+    res = json.loads(expected)["resolution"]
+    assert res == {"torque": 0.04, "cos_theta": pytest.approx(0.11552, abs=1e-5),
+                   "sin_theta": pytest.approx(0.12033, abs=1e-5),
+                   "theta_dot": pytest.approx(0.47293, abs=1e-5)}
+    run_embedded(context(tmp_path, "gym:Pendulum-v1", params, 3, "t-gym-fixed"))
+    assert (tmp_path / "knowledge.json").read_text() == expected

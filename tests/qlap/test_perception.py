@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from qlap_runtime.qlap import ModelLearner, Params
 from qlap_runtime.qlap.perception import Perception, initial_motor_landmark
@@ -86,6 +87,34 @@ def test_landmarks_keep_to_the_variable_resolution():
     assert learner._fit_resolution(u, 320.0, 330.0) is None          # gap 10.5 < 20
     assert learner._fit_resolution(u, 330.0, 352.0) == (330.0, 352.0)  # gap 20.5
     assert learner._fit_resolution(u, -12.0, -8.0) is None            # 8 from the landmark 0
+
+
+def test_an_estimated_resolution_is_fixed_at_the_end_of_babbling():
+    """A magnitude without a declared resolution has its average change per step as the
+    estimate (half the §4.4.2 bin) until the end of babbling, and keeps that value after
+    (docs/decisions.md 77): x moves 0.2 a step for the 100 babbling steps, then 0.6 a step;
+    the resolution stays 0.2 where the live estimate rises to 0.468, also through a
+    checkpoint. A magnitude that did not move while babbling stays estimated."""
+    per, table = perception(babble_steps=100)
+    x = table.index("x")
+    for t in range(100):
+        if t == 99:
+            assert per.resolution(x) == pytest.approx(0.2) and per.fixed_resolution == {}
+        per.perceive(t, per.vector({"u": 0.0, "g": 0.0, "x": 0.2 * t}))
+    assert per.fixed_resolution == {x: pytest.approx(0.2)}
+    for t in range(100, 300):
+        per.perceive(t, per.vector({"u": 0.0, "g": 0.0, "x": 19.8 + 0.6 * (t - 99)}))
+    assert 0.5 * per.bin_size(x) == pytest.approx(0.4676, abs=1e-4)  # (99·0.2 + 200·0.6) / 299
+    assert per.resolution(x) == pytest.approx(0.2)
+    meta, arrays = per.to_state()
+    again, _ = perception(babble_steps=100)
+    again.load_state(meta, arrays)
+    assert again.resolution(x) == pytest.approx(0.2)
+    still, _ = perception(babble_steps=100)
+    for t in range(150):
+        moved = 0.1 * max(t - 119, 0)                          # from step 120 on, 0.1 a step
+        still.perceive(t, still.vector({"u": 0.0, "g": 0.0, "x": 1.0 + moved}))
+    assert still.fixed_resolution == {} and still.resolution(x) == pytest.approx(0.1)
 
 
 def test_landmark_signature_changes_only_with_the_variables_landmarks():

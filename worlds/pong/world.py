@@ -11,6 +11,12 @@ at a random place, §7.10.1).
 
 The world declares ``agent_options = {"k_fixed": 6, "nrp": True}``: the agent must fix its
 window k at 6 and allow plans without a reliable plan for the antecedent event (§7.10.1).
+
+Each magnitude declares its resolution (docs/decisions.md 76), the distance it moves in one
+tick, so that no learned landmark or interval between two is one the motion steps over: the
+x positions (b_x, c^l_x, c^r_x, and the constant l_x, r_x) the ball's x step 0.4; the paddles
+(l_y, r_y) their step 0.5; b_y, c^l_y and c^r_y the ball's mean y step at a serve, 0.225 (its
+y speed is drawn from [0.1, 0.35]; with the paddles at rest c^l_y and c^r_y move with it).
 """
 
 from __future__ import annotations
@@ -34,20 +40,34 @@ MAX_SPEED_Y = 0.5
 BALL_RADIUS = 0.3
 DEAD_BAND = 0.05
 STEP_SECONDS = 1.0
+RESOLUTION_X = BALL_SPEED_X
+"""Resolution of the x positions: the ball moves exactly this far in x every tick."""
+RESOLUTION_PADDLE = PADDLE_SPEED
+"""Resolution of the paddles' y: they move in steps of this size (or rest)."""
+RESOLUTION_Y = 0.5 * (BALL_SPEED_Y[0] + BALL_SPEED_Y[1])
+"""Resolution of the ball's y and of the paddles' y relative to it: the ball's mean y step at
+a serve (0.225; measured over 20,000 random-motor steps, the mean |Δb_y| is 0.224)."""
 
 _M = VarKind.MAGNITUDE
+
+
+def _m(name: str, meaning: str, resolution: float) -> VariableSpec:
+    return VariableSpec(name, _M, meaning, resolution=resolution)
+
+
 VARIABLES = (
     VariableSpec("u", VarKind.MOTOR, "paddles: < -0.05 down, > 0.05 up, else steady", -1.0, 1.0),
-    VariableSpec("l_x", _M, "left paddle's face x (constant 1)"),
-    VariableSpec("l_y", _M, "left paddle centre y; + is up"),
-    VariableSpec("r_x", _M, "right paddle's face x (constant 19)"),
-    VariableSpec("r_y", _M, "right paddle centre y; + is up"),
-    VariableSpec("b_x", _M, "ball centre x; + is right"),
-    VariableSpec("b_y", _M, "ball centre y; + is up"),
-    VariableSpec("cl_x", _M, "left paddle x minus ball x (c^l_x); < 0 while the ball is in play"),
-    VariableSpec("cl_y", _M, "left paddle y minus ball y (c^l_y); + when the paddle is above"),
-    VariableSpec("cr_x", _M, "right paddle x minus ball x (c^r_x); > 0 while the ball is in play"),
-    VariableSpec("cr_y", _M, "right paddle y minus ball y (c^r_y); + when the paddle is above"),
+    _m("l_x", "left paddle's face x (constant 1)", RESOLUTION_X),
+    _m("l_y", "left paddle centre y; + is up", RESOLUTION_PADDLE),
+    _m("r_x", "right paddle's face x (constant 19)", RESOLUTION_X),
+    _m("r_y", "right paddle centre y; + is up", RESOLUTION_PADDLE),
+    _m("b_x", "ball centre x; + is right", RESOLUTION_X),
+    _m("b_y", "ball centre y; + is up", RESOLUTION_Y),
+    _m("cl_x", "left paddle x minus ball x (c^l_x); < 0 while the ball is in play", RESOLUTION_X),
+    _m("cl_y", "left paddle y minus ball y (c^l_y); + when the paddle is above", RESOLUTION_Y),
+    _m("cr_x", "right paddle x minus ball x (c^r_x); > 0 while the ball is in play",
+       RESOLUTION_X),
+    _m("cr_y", "right paddle y minus ball y (c^r_y); + when the paddle is above", RESOLUTION_Y),
 )
 
 
