@@ -105,7 +105,8 @@ class ActionStats:
                 self.timed_successes += 1
         else:
             self.failures += 1
-        self.history.append(self.rel(p.prior))
+        self.history.append(self.rel(p.prior) if p.iac_progress == "cumulative"
+                            else float(success))
         self.sufficiently_reliable(p)
 
     def mean_steps_to_success(self) -> float | None:

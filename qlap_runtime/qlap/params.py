@@ -150,6 +150,11 @@ class Params:
     """θ = τ: IAC compares mean rel(a) over the last 25 calls with the 25 before (eq. 6.1)."""
     iac_min_weight: float = 0.001
     """w_a = max(0.001, rel_new − rel_old) (eq. 6.1)."""
+    iac_progress: str = "cumulative"
+    """What eq. 6.1 averages over its windows of θ calls: ``"cumulative"``, rel(a) over all
+    calls as recorded at each termination; ``"windowed"``, each call's outcome (1 success, 0
+    failure), so rel_new and rel_old are the success rates of the last θ calls and the θ
+    before (docs/decisions.md 78)."""
     plan_epsilon: float = 0.05
     """ε of the ε-greedy plan choice (§6.1.2)."""
     policy_epsilon: float = 0.05
@@ -204,6 +209,9 @@ class Params:
         if self.batch_lag < 0 or self.batch_lag >= self.dbn_period:
             raise ValueError(
                 f"Params.batch_lag must lie in [0, dbn_period), got {self.batch_lag!r}")
+        if self.iac_progress not in ("cumulative", "windowed"):
+            raise ValueError(f"Params.iac_progress must be 'cumulative' or 'windowed', "
+                             f"got {self.iac_progress!r}")
         if self.k_fixed is not None and self.k_fixed < 1:
             raise ValueError(f"Params.k_fixed must be >= 1 or None, got {self.k_fixed!r}")
         if self.derivative_zero_band < 0 or self.motor_zero_band < 0:

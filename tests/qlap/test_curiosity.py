@@ -58,6 +58,34 @@ def test_action_weight_switches_regime_at_50_calls() -> None:
     assert expected > 0.001
 
 
+def test_windowed_iac_compares_success_rates_of_the_two_windows() -> None:
+    """``iac_progress="windowed"`` (docs/decisions.md 78): rel_new and rel_old of eq. 6.1 are the
+    success rates of the last 25 calls and of the 25 before."""
+    pw = P.replace(iac_progress="windowed")
+    a = ActionStats()
+    outcomes = [True] * 5 + [False] * 20 + [True] * 15 + [False] * 10   # 5/25, then 15/25
+    for ok in outcomes:
+        a.record(ok, None, pw)
+    assert list(a.history) == [float(ok) for ok in outcomes]
+    assert action_weight(a, 0.6, pw) == pytest.approx(15 / 25 - 5 / 25)    # 0.4
+    # The cumulative reading of the same calls: means of rel(a) = (s + 1)/(n + 2).
+    b = ActionStats()
+    for ok in outcomes:
+        b.record(ok, None, P)
+    s = np.cumsum(outcomes)
+    h = (s + 1) / (np.arange(1, 51) + 2)
+    assert h[25:].mean() - h[:25].mean() == pytest.approx(-0.056097, abs=1e-6)
+    # The success rate tripled, yet the cumulative reading sees no progress (the floor).
+    assert action_weight(b, 0.6, P) == 0.001
+    # An action that keeps failing (or keeps succeeding) makes no progress in either reading.
+    c = ActionStats()
+    for _ in range(50):
+        c.record(False, None, pw)
+    assert action_weight(c, 0.6, pw) == 0.001
+    with pytest.raises(ValueError, match="iac_progress"):
+        P.replace(iac_progress="outcomes")
+
+
 def test_choose_action_frequencies() -> None:
     rng = np.random.default_rng(3)
     keys = [(0, 0), (4, 2)]
