@@ -822,6 +822,12 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         print(f"{res['world']} {res['task']} ({res['policy']}, {res['n_trials']} trials): "
               f"mean reward {res['mean_reward']:.3f} ± {res['stderr_reward']:.3f} (s.e.), "
               f"success rate {res['success_rate']:.2f}")
+        goals = res.get("by_goal", {})
+        if len(goals) > 1:              # a task that draws its goal: each goal's trials
+            for name, g in goals.items():
+                print(f"  {name:12s} {g['trials']:4d} trials: mean reward "
+                      f"{g['mean_reward']:.3f}, {g['successes']} reached, {g['failures']} "
+                      f"ended early, {g['timeouts']} timed out")
     return 0
 
 

@@ -62,10 +62,15 @@ def test_show_and_eval_on_a_run(tmp_path):
     assert res["n_trials"] == 3
     assert res["policy"] == "qlap"
     assert -3.01 <= res["mean_reward"] <= 9.99
+    assert sum(g["trials"] for g in res["by_goal"].values()) == 3
     r = qlap("eval", "--world", "core2d", "--policy", "random", "--task", "move_block",
-             "--trials", "3")
+             "--trials", "12")
     assert r.returncode == 0, r.stderr
-    assert "mean reward" in r.stdout
+    lines = r.stdout.splitlines()
+    assert "mean reward" in lines[0]
+    # Each goal the trials drew, on a line of its own (move_block draws one of three).
+    per_goal = [ln.split()[0] for ln in lines[1:]]
+    assert len(per_goal) >= 2 and set(per_goal) <= {"T_L.dot=+", "T_R.dot=-", "T_T.dot=+"}
     r = qlap("eval", "--world", "core2d", "--task", "move_block")
     assert r.returncode == 2
     assert "--checkpoint is required" in r.stderr

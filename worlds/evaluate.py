@@ -40,7 +40,9 @@ def run_trials(
 
     Returns ``mean_reward``, ``std_reward``, ``rewards`` (per trial), ``successes`` (number of
     successful steps: trials that reached the goal, or volleys for a non-episodic task),
-    ``failures`` (trials ended early), ``timeouts`` and ``mean_steps``.
+    ``failures`` (trials ended early), ``timeouts``, ``mean_steps``, and ``by_goal``: the same
+    counts for each goal a trial started with (``"T_L.dot=+"``; move_block draws one of three,
+    §7.2.2 footnote 2), so that a weak goal shows.
     """
     if task_name not in world.tasks:
         raise ValueError(f"{world.name} has no task {task_name!r}; tasks: {sorted(world.tasks)}")
@@ -49,11 +51,14 @@ def run_trials(
     rewards: list[float] = []
     steps_taken: list[int] = []
     successes = failures = timeouts = 0
+    by_goal: dict[str, dict[str, Any]] = {}
     for _ in range(n_trials):
         obs = task.setup(world, rng)
         total = 0.0
         steps = 0
         ended = False
+        outcome = "timeouts"
+        first = task.goal(world, obs)
         while steps < task.max_steps:
             goal = task.goal(world, obs)
             obs = world.step(policy(world, obs, goal, rng))
@@ -61,6 +66,7 @@ def run_trials(
             if task.is_success(world, obs):
                 total += task.success_reward
                 successes += 1
+                outcome = "successes"
                 if task.episodic:
                     ended = True
                     break
@@ -68,12 +74,18 @@ def run_trials(
             total += task.step_cost
             if task.is_failure(world, obs):
                 failures += 1
+                outcome = "failures"
                 ended = True
                 break
         if not ended:
             timeouts += 1
         rewards.append(total)
         steps_taken.append(steps)
+        g = by_goal.setdefault(f"{first.variable}={first.value}", {
+            "trials": 0, "successes": 0, "failures": 0, "timeouts": 0, "reward": 0.0})
+        g["trials"] += 1
+        g[outcome] += 1
+        g["reward"] += total
     return {
         "task": task_name,
         "world": world.name,
@@ -85,6 +97,10 @@ def run_trials(
         "failures": failures,
         "timeouts": timeouts,
         "mean_steps": float(np.mean(steps_taken)) if steps_taken else 0.0,
+        "by_goal": {k: {"trials": g["trials"], "successes": g["successes"],
+                        "failures": g["failures"], "timeouts": g["timeouts"],
+                        "mean_reward": g["reward"] / g["trials"]}
+                    for k, g in sorted(by_goal.items())},
     }
 
 

@@ -70,6 +70,24 @@ def test_random_trials_report(spec: str, task: str) -> None:
     assert again["rewards"] == result["rewards"]
 
 
+def test_trials_are_counted_by_the_goal_they_started_with() -> None:
+    """move_block draws left, right or forward per trial (§7.2.2 footnote 2): ``by_goal``
+    splits the counts by that first goal and adds up to the totals; the random policy's 100
+    trials (seed 0) make 37 left, 45 right and 18 forward."""
+    world = make("core")
+    res = run_random_trials(world, "move_block", n_trials=100, seed=0)
+    goals = res["by_goal"]
+    assert {k: g["trials"] for k, g in goals.items()} == \
+        {"T_L.dot=+": 37, "T_R.dot=-": 45, "T_T.dot=+": 18}
+    for key in ("successes", "failures", "timeouts"):
+        assert sum(g[key] for g in goals.values()) == res[key]
+    assert sum(g["mean_reward"] * g["trials"] for g in goals.values()) == \
+        pytest.approx(sum(res["rewards"]))
+    assert goals["T_R.dot=-"]["successes"] == 24
+    one = run_random_trials(world, "hit_floor", n_trials=3, seed=0)["by_goal"]
+    assert list(one) == ["bang=true"] and one["bang=true"]["trials"] == 3
+
+
 def test_unknown_task() -> None:
     with pytest.raises(ValueError, match="no task 'fly'"):
         run_random_trials(make("core"), "fly", 1, 0)
