@@ -20,6 +20,7 @@ from qlap_runtime.runtime.actor import Actor, ActorBase
 from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.rules import qstate_rule
 
+from .chain import Chain
 from .checkpoint_parts import gather_final_parts, keep_on_stall
 from .convert import QStateCodec
 from .executor_parts import BatchLinks, Controls, Files, end_marker, load_executor_agent
@@ -29,21 +30,23 @@ NAME = "executor"
 
 
 class ExecutorActor(ActorBase):
-    """The executor actor. Standalone (:func:`run`) it is a task of its own; in the embedded
-    placement the world's task hosts it after the perception actor and calls :meth:`step` once
-    ``qstate(t)`` is in its inbox. Either way :meth:`between_steps` runs beside it."""
+    """The executor actor. Standalone (:func:`run`) it is a task of its own; on the hosted
+    step chain (``chain``) the world's task calls :meth:`step` after the perception actor's,
+    which perceived step t with this agent's learner's perception (decision 83), and takes
+    ``motor(t)`` from the chain. Either way :meth:`between_steps` runs beside it."""
 
-    def __init__(self, session: Any, ctx: RunContext, *, hosted: bool = False) -> None:
-        self.ctx, self.hosted, self.steps_done = ctx, hosted, 0
+    def __init__(self, session: Any, ctx: RunContext, *, chain: Chain | None = None) -> None:
+        self.ctx, self.chain, self.hosted, self.steps_done = ctx, chain, chain is not None, 0
         self.actor = actor = Actor(session, ctx, NAME, obey=True)
         self.agent, self.checkpoint = load_executor_agent(ctx, actor.resume)
         agent = self.agent
         self.handover = HandOver(ctx, agent.learner)    # decision 72
         self.codec = QStateCodec(agent.table)
-        actor.input("qstate", window=1, rule=qstate_rule(self.codec.names))
+        self.inbox = actor.input("qstate", window=1, rule=qstate_rule(self.codec.names),
+                                 hosted=self.hosted)
         self.deltas = actor.deltas(len(agent.table))
         self.links = BatchLinks(actor, ctx, self.deltas.book)
-        self.motors = actor.output("motor")
+        self.motors = actor.output("motor", logged=not self.hosted)   # hosted: the world's
         self.controls = Controls(session, ctx, agent, actor)
         self.files = Files(ctx, agent, actor.resume)
         self.result: dict[str, Any] | None = None
@@ -63,15 +66,20 @@ class ExecutorActor(ActorBase):
         """``qstate(t)`` -> ``motor(t)``; False when the run ended before step t."""
         ctx, agent, actor, commands = self.ctx, self.agent, self.actor, self.controls.commands
         commands.apply()
-        with commands.waiting():
-            msg = await actor.receive(t)
-        if msg is None:
-            return False
-        p = None
-        if msg.rejected:
+        chain, p = self.chain, None
+        if chain is None:
+            with commands.waiting():
+                msg = await actor.receive(t)
+            if msg is None:
+                return False
+            rejected = msg.rejected
+        else:                                   # perceived with the learner's perception
+            self.inbox.discard(t)               # the rules on anything else that came
+            rejected = chain.rejected
+        if rejected:
             self.deltas.book.skipped.add(t)
             self.links.rejected(t)
-            self.files.rejected.append(f"step {t}: {msg.rejected}")
+            self.files.rejected.append(f"step {t}: {rejected}")
             self.handover.observed(t, None)                 # no batch at t
             motor = Motor(t, dict(agent.motor))
         else:
@@ -79,7 +87,12 @@ class ExecutorActor(ActorBase):
             # the sync loop. Deltas waited for before observing (a stall: a step boundary).
             due = await self.deltas.due_now(t, ctx.realtime)
             plans = await self.links.plans.due(t) if ctx.params.batch_lag else None
-            p = agent.learner.observe_percept(self.codec.percept(msg))
+            if chain is None:
+                p = agent.learner.observe_percept(self.codec.percept(msg))
+            else:
+                assert chain.percept is not None
+                assert chain.percept.step == t
+                p = agent.learner.observe_own(chain.percept)
             self.links.observed(agent, t)
             self.handover.observed(t, agent.learner)      # the state the batch at t copies
             for d in due:
@@ -89,6 +102,8 @@ class ExecutorActor(ActorBase):
             motor = Motor(t, dict(agent.decide(p)))
         self.links.decided(agent, t)
         self.motors.put(t, motor)
+        if chain is not None:
+            chain.motor = motor
         actor.slot.done(t)
         self.steps_done += 1
         if p is not None:

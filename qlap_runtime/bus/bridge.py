@@ -223,13 +223,18 @@ class TrioSubscriber:
 
     Malformed messages are counted in ``counter`` and left out of the batches. With
     ``decode=False`` batches hold undecoded :class:`Received` items whose ``msg`` is None.
+    ``local=False``: the messages of this session's :class:`Publisher` s are not handed to it
+    (an actor of the hosted step chain takes them in memory, docs/decisions.md 84); raw puts
+    and other sessions' messages still come.
     """
 
     def __init__(self, session: zenoh.Session, key_expr: str, *,
-                 counter: RejectionCounter | None = None, decode: bool = True) -> None:
+                 counter: RejectionCounter | None = None, decode: bool = True,
+                 local: bool = True) -> None:
         self.key_expr = key_expr
         self.counter = counter if counter is not None else RejectionCounter()
         self._decode = decode
+        self.local = local
         self._inbox: TrioInbox[tuple[str, bytes, int, Message | None]] = TrioInbox()
         self._routes = LocalRoutes.of(session)
         self._sub = session.declare_subscriber(
@@ -366,7 +371,7 @@ class LocalRoutes:
         with self._lock:
             ke = zenoh.KeyExpr(key)
             return self.version, [s for s in self._subs
-                                  if zenoh.KeyExpr(s.key_expr).intersects(ke)]
+                                  if s.local and zenoh.KeyExpr(s.key_expr).intersects(ke)]
 
     def tag(self, version: int) -> bytes:
         return self.prefix + str(version).encode()
@@ -450,15 +455,30 @@ class Publisher:
             return True
         return self.faults.put(partial(self._send, msg=msg), payload)   # lost or late
 
-    def _send(self, payload: bytes, msg: Message | None = None) -> None:
-        """Hand ``payload`` (and ``msg``, the message it encodes, if known) to the subscribers
-        of this session, then put it on Zenoh for every other subscriber, tagged so that this
-        session's own drop their second copy."""
+    @property
+    def wanted(self) -> bool:
+        """Whether a :meth:`put` now would reach anyone: a :class:`TrioSubscriber` of this
+        session, another session's subscriber (a lockstep topic: while one listens; any other
+        topic: always), or an injected fault. False lets a writer skip the encoding, and even
+        the message (docs/decisions.md 84)."""
+        if self.faults is not None or not self.remote_only or self._local_subs():
+            return True
+        return self.remote or bool(self._pub.matching_status.matching)
+
+    def _local_subs(self) -> list[TrioSubscriber]:
         version, local, tag = self._local
         if version != self._routes.version:
             version, local = self._routes.matching(self.key)
             tag = self._routes.tag(version)
             self._local = (version, local, tag)
+        return local
+
+    def _send(self, payload: bytes, msg: Message | None = None) -> None:
+        """Hand ``payload`` (and ``msg``, the message it encodes, if known) to the subscribers
+        of this session, then put it on Zenoh for every other subscriber, tagged so that this
+        session's own drop their second copy."""
+        local = self._local_subs()
+        tag = self._local[2]
         for sub in local:
             sub.deliver(self.key, payload, msg)
         if self.remote_only:

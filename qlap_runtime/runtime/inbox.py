@@ -145,6 +145,15 @@ class StepInbox:
         for r in self.sub.receive_nowait():
             self.add(r.msg, len(r.payload))
 
+    def discard(self, step: int) -> None:
+        """A hosted input (:meth:`~qlap_runtime.runtime.actor.Actor.input`): keep the rules on
+        what has arrived (counted, as :meth:`get` would) and forget it up to ``step``, whose
+        message the actor took in memory."""
+        self.drain()
+        if self.buf:
+            self.drop_before(step + 1)
+        self.next = max(self.next, step + 1)
+
     def ready(self, step: int) -> bool:
         """Whether step ``step``'s message is here (what has arrived is kept first)."""
         if step not in self.buf:
