@@ -52,6 +52,11 @@ LOCKSTEP_TOPICS = frozenset({"sense", "qstate", "motor", "delta/dbn", "delta/lan
                              "batchctx", "planreq", "delta/plans"})
 """Topics on the lockstep chain, published ``express`` (sent at once, not batched)."""
 
+QUIET_S = 0.05
+"""How long a lockstep topic's publisher trusts zenoh's answer that no other session listens
+before asking again (:meth:`Publisher.wanted`; zenoh's matching listener reports a new
+subscriber in any case; docs/decisions.md 84)."""
+
 T = TypeVar("T")
 _DONE: Any = object()
 
@@ -430,6 +435,7 @@ class Publisher:
         if self.remote_only:
             self._matching = self._pub.declare_matching_listener(self._on_matching)
             self.remote = bool(self._pub.matching_status.matching)
+        self._quiet_until = 0.0
         self.skipped = 0
         """Zenoh puts left out: nobody outside the session listened."""
         self._routes = LocalRoutes.of(session)
@@ -463,7 +469,22 @@ class Publisher:
         the message (docs/decisions.md 84)."""
         if self.faults is not None or not self.remote_only or self._local_subs():
             return True
-        return self.remote or bool(self._pub.matching_status.matching)
+        return self._remote_now()
+
+    def _remote_now(self) -> bool:
+        """Whether another session listens: the listener's answer, else zenoh's matching
+        status (the listener's False may lag zenoh's routing: a subscription just declared),
+        whose no is trusted for :data:`QUIET_S` (a query is 1.1 µs, and the step chain asks
+        for three topics a step)."""
+        if self.remote:
+            return True
+        now = time.monotonic()
+        if now < self._quiet_until:
+            return False
+        if self._pub.matching_status.matching:
+            return True
+        self._quiet_until = now + QUIET_S
+        return False
 
     def _local_subs(self) -> list[TrioSubscriber]:
         version, local, tag = self._local
@@ -482,9 +503,8 @@ class Publisher:
         for sub in local:
             sub.deliver(self.key, payload, msg)
         if self.remote_only:
-            # Other sessions only (no second local copy). The listener's False may lag
-            # zenoh's routing (a subscription just declared): zenoh's own answer decides then.
-            if self.remote or self._pub.matching_status.matching:
+            # Other sessions only (no second local copy), while one listens.
+            if self._remote_now():
                 self._pub.put(payload)
             else:
                 self.skipped += 1
