@@ -33,6 +33,10 @@ OTHERS_END_S = 120.0
 """How long a failed world waits for the other actors to write their outputs."""
 VIEW_S = 0.1
 """The UI's world panel is published at most this often."""
+YIELD_S = 0.001
+"""The hosted step chain lets the run's other tasks (learners, planner, controls, viewers) run
+at least this often (docs/decisions.md 85): a trio checkpoint is a turn of the scheduler with
+an epoll poll, which every step paid."""
 
 
 class WorldActor(ActorBase):
@@ -56,7 +60,7 @@ class WorldActor(ActorBase):
         self.clock = world_clock(ctx.realtime, ctx.hz, actor.controls, actor.counter, actor.slot)
         self.stats: dict[str, Any] = {"steps": 0}
         self.failure: WorldFailed | None = None
-        self.last_view = 0.0
+        self.last_view = self.last_yield = 0.0
 
     async def step(self, t: int) -> bool:
         """``sense(t)``, the hosted steps, ``motor(t)``, the physics; False: the run ends."""
@@ -71,7 +75,9 @@ class WorldActor(ActorBase):
             chain.sense = sense
             await self.perception.step(t)       # type: ignore[union-attr]
             await self.executor.step(t)
-            await trio.lowlevel.checkpoint()    # yield once a step: learners, controls, viewers
+            if (now := time.perf_counter()) - self.last_yield >= YIELD_S:
+                self.last_yield = now
+                await trio.lowlevel.checkpoint()    # learners, controls, viewers
             motor, chain.motor = chain.motor, None
             self.motors.discard(t)              # the rules on anything else that came
         if motor is not None:
