@@ -93,8 +93,8 @@ class ExecutorActor(ActorBase):
                 assert chain.percept is not None
                 assert chain.percept.step == t
                 p = agent.learner.observe_own(chain.percept)
-            self.links.observed(agent, t)
-            self.handover.observed(t, agent.learner)      # the state the batch at t copies
+            # The state the batch at t copies, and the plan compilation of t reads.
+            self.links.observed(agent, t, self.handover.observed(t, agent.learner))
             for d in due:
                 agent.learner.apply_delta(d)
             agent.pending_plans.extend(plans if plans is not None

@@ -31,6 +31,7 @@ from qlap_runtime.qlap.checkpoint import (
     save_step_checkpoint,
     step_name,
 )
+from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.plan_delta import PlanDelta
 from qlap_runtime.runtime.actor import Actor, Resume
@@ -114,12 +115,13 @@ class BatchLinks:
         if t in self.plans.asked:
             self.requests.put(t, PlanRequest(t, rejected=True))
 
-    def observed(self, agent: Agent, t: int) -> None:
+    def observed(self, agent: Agent, t: int, batch: ModelLearner | None = None) -> None:
         """After observing ``qstate(t)``, before the deltas due at t: the state the batch at
-        t copies, which the planner compiles."""
+        t copies, which the planner compiles (on ``batch``, the learners' copy, when the
+        batch computes on it here: docs/decisions.md 86)."""
         if t in self.plans.asked:
             # The planner in this process (RunContext.groups): the agent in memory.
-            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t, self.ctx.realtime)
+            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t, self.ctx.realtime, batch)
                               if self.ctx.together("executor", "planner")
                               else plan_request(agent, t))
 
