@@ -120,6 +120,7 @@ class ExecutorActor(ActorBase):
     async def finish(self, quit_at: int | None) -> dict[str, Any]:
         """After the last step (``quit_at``: the world's last step after a ``quit``): the
         final status and files; then stay until the actors behind are done."""
+        self.files.flush()                      # the last step's checkpoint, as it was
         self.handover.end(self.actor.resume.step + self.steps_done)
         if quit_at is not None:                 # the status answers the world's end marker
             await end_marker(self.actor)
