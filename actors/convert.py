@@ -178,6 +178,7 @@ class LocalRequests:
 
     def put(self, run_id: str, agent: Agent, step: int, light: bool = False,
             batch: Any = None) -> PlanRequest:
+        state: Any
         if light:
             meta, arrays = learner_state(agent.learner)
             state = (json.loads(json.dumps(meta)), {k: v.copy() for k, v in arrays.items()})

@@ -66,7 +66,7 @@ class ExecutorActor(ActorBase):
         """``qstate(t)`` -> ``motor(t)``; False when the run ended before step t."""
         ctx, agent, actor, commands = self.ctx, self.agent, self.actor, self.controls.commands
         commands.apply()
-        chain, p = self.chain, None
+        chain, p, msg = self.chain, None, None
         if chain is None:
             with commands.waiting():
                 msg = await actor.receive(t)
@@ -87,12 +87,12 @@ class ExecutorActor(ActorBase):
             # the sync loop. Deltas waited for before observing (a stall: a step boundary).
             due = await self.deltas.due_now(t, ctx.realtime)
             plans = await self.links.plans.due(t) if ctx.params.batch_lag else None
-            if chain is None:
+            if msg is not None:                 # from the bus
                 p = agent.learner.observe_percept(self.codec.percept(msg))
-            else:
-                assert chain.percept is not None
-                assert chain.percept.step == t
+            elif chain is not None and chain.percept is not None and chain.percept.step == t:
                 p = agent.learner.observe_own(chain.percept)
+            else:
+                raise RuntimeError(f"the hosted step chain has no percept of step {t}")
             # The state the batch at t copies, and the plan compilation of t reads.
             self.links.observed(agent, t, self.handover.observed(t, agent.learner))
             for d in due:

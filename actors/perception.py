@@ -73,8 +73,8 @@ class PerceptionActor(ActorBase):
         p, rejected = self.perceive(t, msg)
         if chain is not None:
             chain.perceived(p, rejected)
-        if rejected or self.out.wanted:
-            self.out.put(t, QState(t, {}, (), {}, rejected=rejected) if rejected
+        if p is None or self.out.wanted:
+            self.out.put(t, QState(t, {}, (), {}, rejected=rejected) if p is None
                          else self.codec.message(p))
         else:
             self.out.skip()

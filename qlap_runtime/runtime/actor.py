@@ -98,27 +98,33 @@ class Output:
                  logged: bool = True) -> None:
         self.pub = Publisher(session, ctx.run_id, topic, faults=Faults.of(ctx.faults),
                              tag=actor)
-        self.log = ReplayLog(session, ctx.run_id, topic, ctx.replay_keep) if logged else None
+        self._log = ReplayLog(session, ctx.run_id, topic, ctx.replay_keep) if logged else None
         self.key = keys.key(ctx.run_id, topic)
         self.unsent = 0
         """Messages neither logged nor put: nobody listened."""
 
     @property
+    def log(self) -> ReplayLog:
+        """The replay log (an output made with ``logged``)."""
+        assert self._log is not None, f"{self.key} keeps no replay log"
+        return self._log
+
+    @property
     def wanted(self) -> bool:
         """Whether :meth:`put` would do anything (a log, or a listener): a writer may skip
         building a message nobody reads."""
-        return self.log is not None or self.pub.wanted
+        return self._log is not None or self.pub.wanted
 
     def put(self, step: int, msg: Message) -> None:
         """Publish ``msg`` and log it under ``step`` (not logged only when an injected fault
         loses it for good, :class:`~qlap_runtime.bus.faults.Faults` ``lost``)."""
-        if self.log is None:
+        if self._log is None:
             if self.pub.wanted:
                 self.pub.put(msg)
             else:
                 self.unsent += 1
         elif self.pub.put(msg) or self.pub.faults is None or not self.pub.faults.lost:
-            self.log.append(step, msg, self.pub.payload)
+            self._log.append(step, msg, self.pub.payload)
 
     def skip(self) -> None:
         """A message not built: nobody wanted it (:attr:`wanted`)."""
@@ -127,11 +133,12 @@ class Output:
     def saved(self, since: int | None = None) -> list[list]:
         """The logged ``[step, payload]`` entries from step ``since`` on, for a snapshot
         (:meth:`Actor.restore_log` serves them again)."""
-        return [] if self.log is None else [[s, p.decode()] for s, p in self.log.payloads(since)]
+        return [] if self._log is None \
+            else [[s, p.decode()] for s, p in self._log.payloads(since)]
 
     def close(self) -> None:
-        if self.log is not None:
-            self.log.close()
+        if self._log is not None:
+            self._log.close()
         self.pub.close()
 
 
@@ -201,7 +208,6 @@ class Actor:
 
     def restore_log(self, output: Output, entries: list) -> None:
         """Serve again the ``[step, payload]`` entries a snapshot kept of ``output``'s log."""
-        assert output.log is not None or not entries
         for step, payload in entries:
             output.log.append(int(step), decode(output.key, payload), payload.encode())
 
