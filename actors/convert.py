@@ -166,29 +166,44 @@ class LocalRequests:
     executor goes on while the planner compiles) instead of its files; the message only says
     so (``local``), and stays in the replay log like any other. ``light`` (the realtime
     clock): the learner goes as its checkpoint state, taken in a few ms on the world's tick
-    and rebuilt by :meth:`take` in the planner's thread (docs/decisions.md 82)."""
+    and rebuilt by :meth:`take` in the planner's thread (docs/decisions.md 82). ``batch``: the
+    learners' copy of the same state, handed to their batch in this process, which applies
+    the batch's operations to it as it computes (what the synchronous loop's ``take_batch``
+    gives): the compilation runs on it once the batch's deltas are out, without a second
+    copy on the step chain (docs/decisions.md 86)."""
 
     def __init__(self) -> None:
         self.agents: dict[tuple[str, int], tuple[Agent, Any]] = {}
         self.lock = threading.Lock()
 
-    def put(self, run_id: str, agent: Agent, step: int, light: bool = False) -> PlanRequest:
+    def put(self, run_id: str, agent: Agent, step: int, light: bool = False,
+            batch: Any = None) -> PlanRequest:
+        state: Any
         if light:
             meta, arrays = learner_state(agent.learner)
             state = (json.loads(json.dumps(meta)), {k: v.copy() for k, v in arrays.items()})
             copy = agent.planning_copy(agent.learner, deep=True)    # its learner: take's
+        elif batch is not None:
+            state, copy = BATCHED, agent.planning_copy(batch, deep=True)
         else:
             state, copy = None, agent.planning_copy(agent.learner.batch_copy(), deep=True)
         with self.lock:
             self.agents[(run_id, step)] = (copy, state)
         return PlanRequest(step, local=True)
 
-    def take(self, run_id: str, step: int) -> Agent:
+    def take(self, run_id: str, step: int) -> tuple[Agent, bool]:
+        """The request's agent, and whether its learner holds the batch's deltas already."""
         with self.lock:
             copy, state = self.agents.pop((run_id, step))
+        if state is BATCHED:
+            return copy, True
         if state is not None:
             copy.learner = restore_learner(*state)
-        return copy
+        return copy, False
+
+
+BATCHED = object()
+"""A local request's mark: its learner is the learners' batch copy (:class:`LocalRequests`)."""
 
 
 LOCAL = LocalRequests()
@@ -207,14 +222,15 @@ def compile_request(msg: PlanRequest, deltas: list[Delta], lag: int,
                     run_id: str = "") -> PlanDelta:
     """The planner's work: the request's agent, the batch's ``deltas`` applied to its learner,
     compiled (:meth:`~qlap_runtime.qlap.agent.Agent.compile_plans`)."""
+    applied = False
     if msg.local:
-        agent = LOCAL.take(run_id, msg.step)
+        agent, applied = LOCAL.take(run_id, msg.step)
     else:
         with tempfile.TemporaryDirectory(prefix="qlap-planreq-", dir=SCRATCH) as tmp:
             for name in REQUEST_FILES:
                 (Path(tmp) / name).write_bytes(base64.b64decode(msg.files[name],
                                                                 validate=True))
             agent = load_agent(tmp)
-    for d in deltas:
+    for d in () if applied else deltas:
         agent.learner.apply_delta(d)
     return agent.compile_plans(msg.step, msg.step + lag)

@@ -20,6 +20,7 @@ from qlap_runtime.runtime.actor import Actor, ActorBase
 from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.rules import qstate_rule
 
+from .chain import Chain
 from .checkpoint_parts import gather_final_parts, keep_on_stall
 from .convert import QStateCodec
 from .executor_parts import BatchLinks, Controls, Files, end_marker, load_executor_agent
@@ -29,21 +30,23 @@ NAME = "executor"
 
 
 class ExecutorActor(ActorBase):
-    """The executor actor. Standalone (:func:`run`) it is a task of its own; in the embedded
-    placement the world's task hosts it after the perception actor and calls :meth:`step` once
-    ``qstate(t)`` is in its inbox. Either way :meth:`between_steps` runs beside it."""
+    """The executor actor. Standalone (:func:`run`) it is a task of its own; on the hosted
+    step chain (``chain``) the world's task calls :meth:`step` after the perception actor's,
+    which perceived step t with this agent's learner's perception (decision 83), and takes
+    ``motor(t)`` from the chain. Either way :meth:`between_steps` runs beside it."""
 
-    def __init__(self, session: Any, ctx: RunContext, *, hosted: bool = False) -> None:
-        self.ctx, self.hosted, self.steps_done = ctx, hosted, 0
+    def __init__(self, session: Any, ctx: RunContext, *, chain: Chain | None = None) -> None:
+        self.ctx, self.chain, self.hosted, self.steps_done = ctx, chain, chain is not None, 0
         self.actor = actor = Actor(session, ctx, NAME, obey=True)
         self.agent, self.checkpoint = load_executor_agent(ctx, actor.resume)
         agent = self.agent
         self.handover = HandOver(ctx, agent.learner)    # decision 72
         self.codec = QStateCodec(agent.table)
-        actor.input("qstate", window=1, rule=qstate_rule(self.codec.names))
+        self.inbox = actor.input("qstate", window=1, rule=qstate_rule(self.codec.names),
+                                 hosted=self.hosted)
         self.deltas = actor.deltas(len(agent.table))
         self.links = BatchLinks(actor, ctx, self.deltas.book)
-        self.motors = actor.output("motor")
+        self.motors = actor.output("motor", logged=not self.hosted)   # hosted: the world's
         self.controls = Controls(session, ctx, agent, actor)
         self.files = Files(ctx, agent, actor.resume)
         self.result: dict[str, Any] | None = None
@@ -63,15 +66,20 @@ class ExecutorActor(ActorBase):
         """``qstate(t)`` -> ``motor(t)``; False when the run ended before step t."""
         ctx, agent, actor, commands = self.ctx, self.agent, self.actor, self.controls.commands
         commands.apply()
-        with commands.waiting():
-            msg = await actor.receive(t)
-        if msg is None:
-            return False
-        p = None
-        if msg.rejected:
+        chain, p, msg = self.chain, None, None
+        if chain is None:
+            with commands.waiting():
+                msg = await actor.receive(t)
+            if msg is None:
+                return False
+            rejected = msg.rejected
+        else:                                   # perceived with the learner's perception
+            self.inbox.discard(t)               # the rules on anything else that came
+            rejected = chain.rejected
+        if rejected:
             self.deltas.book.skipped.add(t)
             self.links.rejected(t)
-            self.files.rejected.append(f"step {t}: {msg.rejected}")
+            self.files.rejected.append(f"step {t}: {rejected}")
             self.handover.observed(t, None)                 # no batch at t
             motor = Motor(t, dict(agent.motor))
         else:
@@ -79,9 +87,14 @@ class ExecutorActor(ActorBase):
             # the sync loop. Deltas waited for before observing (a stall: a step boundary).
             due = await self.deltas.due_now(t, ctx.realtime)
             plans = await self.links.plans.due(t) if ctx.params.batch_lag else None
-            p = agent.learner.observe_percept(self.codec.percept(msg))
-            self.links.observed(agent, t)
-            self.handover.observed(t, agent.learner)      # the state the batch at t copies
+            if msg is not None:                 # from the bus
+                p = agent.learner.observe_percept(self.codec.percept(msg))
+            elif chain is not None and chain.percept is not None and chain.percept.step == t:
+                p = agent.learner.observe_own(chain.percept)
+            else:
+                raise RuntimeError(f"the hosted step chain has no percept of step {t}")
+            # The state the batch at t copies, and the plan compilation of t reads.
+            self.links.observed(agent, t, self.handover.observed(t, agent.learner))
             for d in due:
                 agent.learner.apply_delta(d)
             agent.pending_plans.extend(plans if plans is not None
@@ -89,6 +102,8 @@ class ExecutorActor(ActorBase):
             motor = Motor(t, dict(agent.decide(p)))
         self.links.decided(agent, t)
         self.motors.put(t, motor)
+        if chain is not None:
+            chain.motor = motor
         actor.slot.done(t)
         self.steps_done += 1
         if p is not None:
@@ -105,6 +120,7 @@ class ExecutorActor(ActorBase):
     async def finish(self, quit_at: int | None) -> dict[str, Any]:
         """After the last step (``quit_at``: the world's last step after a ``quit``): the
         final status and files; then stay until the actors behind are done."""
+        self.files.flush()                      # the last step's checkpoint, as it was
         self.handover.end(self.actor.resume.step + self.steps_done)
         if quit_at is not None:                 # the status answers the world's end marker
             await end_marker(self.actor)

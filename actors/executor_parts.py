@@ -31,6 +31,7 @@ from qlap_runtime.qlap.checkpoint import (
     save_step_checkpoint,
     step_name,
 )
+from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.plan_delta import PlanDelta
 from qlap_runtime.runtime.actor import Actor, Resume
@@ -114,12 +115,13 @@ class BatchLinks:
         if t in self.plans.asked:
             self.requests.put(t, PlanRequest(t, rejected=True))
 
-    def observed(self, agent: Agent, t: int) -> None:
+    def observed(self, agent: Agent, t: int, batch: ModelLearner | None = None) -> None:
         """After observing ``qstate(t)``, before the deltas due at t: the state the batch at
-        t copies, which the planner compiles."""
+        t copies, which the planner compiles (on ``batch``, the learners' copy, when the
+        batch computes on it here: docs/decisions.md 86)."""
         if t in self.plans.asked:
             # The planner in this process (RunContext.groups): the agent in memory.
-            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t, self.ctx.realtime)
+            self.requests.put(t, LOCAL.put(self.ctx.run_id, agent, t, self.ctx.realtime, batch)
                               if self.ctx.together("executor", "planner")
                               else plan_request(agent, t))
 
@@ -193,6 +195,8 @@ class Files:
         self.last_saved: tuple[int, int, Path | None] = (-1, -1, None)
         self.writer = Background("checkpoint")
         """Writes the periodic checkpoints off the step chain (docs/decisions.md 81)."""
+        self.deferred: tuple[Path, int, int | None] | None = None
+        """The run's last step's checkpoint, written by :meth:`flush` (decision 87)."""
         self.closed = False
 
     def after_step(self, t: int, p: Percept | None, changes: int) -> None:
@@ -202,11 +206,23 @@ class Files:
             self.metrics.after_step(t + 1, agent)
         if p is not None and ctx.out is not None and (t + 1) % ctx.checkpoint_every == 0:
             root, keep = Path(ctx.out) / "checkpoints", ctx.keep_checkpoints
-            if keep != 0:                       # a deep copy now, written in the writer's thread
+            if keep != 0 and t + 1 == ctx.end:  # the last step: no copy, see flush
+                self.deferred = (root, t + 1, keep)
+            elif keep != 0:                     # a deep copy now, written in the writer's thread
                 self.writer.start(save_step_checkpoint, copy.deepcopy(agent), root, t + 1,
                                   ctx.world, keep)
             self.last_saved = (agent.step_count, changes,
                                None if keep == 0 else root / step_name(t + 1))
+
+    def flush(self) -> None:
+        """After the run's last step, before anything else (the end's commands) may change
+        the agent: that step's checkpoint, written from the agent itself — nothing changes it
+        any more, so it needs no copy (docs/decisions.md 87)."""
+        if self.deferred is not None:
+            root, step, keep = self.deferred
+            self.deferred = None
+            self.writer.wait()
+            save_step_checkpoint(self.agent, root, step, self.ctx.world, keep)
 
     def result(self, steps_done: int, quit_at: int | None) -> dict[str, Any]:
         """The executor's part of its result."""

@@ -10,6 +10,7 @@ part, as the contingency actor's learner does otherwise. Off, every method does 
 from __future__ import annotations
 
 from qlap_runtime.qlap.learner import ModelLearner
+from qlap_runtime.runtime.batch_process import wanted
 from qlap_runtime.runtime.batches import HANDED, hands_over
 from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.lockstep import batch_kinds
@@ -25,11 +26,15 @@ class HandOver:
         if self.on:
             learner.keeps_pairs = True          # the statistics a batch reads
 
-    def observed(self, t: int, learner: ModelLearner | None) -> None:
+    def observed(self, t: int, learner: ModelLearner | None) -> ModelLearner | None:
         """After observing ``qstate(t)``: the batch copy of a batch step (None: step t was
-        rejected, no batch starts there)."""
+        rejected, no batch starts there). Returns it when the batch computes on it in this
+        process, applying its operations as it goes — the state the plan compilation of t
+        reads once the batch's deltas are out (docs/decisions.md 86) — else None."""
         if self.on and batch_kinds(self.ctx.params, t):
-            HANDED.put(self.ctx.run_id, t, learner)
+            work = HANDED.put(self.ctx.run_id, t, learner)
+            return None if wanted() else work   # a worker process: the copy stays as it is
+        return None
 
     def after_step(self, t: int, learner: ModelLearner) -> None:
         """The checkpoints' statistics part of step ``t``."""

@@ -1,9 +1,12 @@
 """The perception actor: ``sense(t)`` -> ``qstate(t)`` with the current landmarks (ch. 3).
 
-Standalone (:func:`run`) it is a task of its own; in the embedded placement the world's task
-calls :meth:`PerceptionActor.step` right after publishing ``sense(t)``, which the session has
-already handed to this actor's inbox (docs/decisions.md 52). Its skeleton — inputs, rules,
-replay log, snapshots — is :mod:`qlap_runtime.runtime.actor`'s.
+Standalone (:func:`run`) it is a task of its own. On the hosted step chain (the embedded
+placement, the processes placement's default groups) the world's task calls
+:meth:`PerceptionActor.step` right after ``sense(t)`` (docs/decisions.md 52); the actor then
+takes ``sense(t)`` from the :class:`~actors.chain.Chain` and perceives with the executor's
+learner's own perception, which the executor then learns from without perceiving again
+(decision 83). Its skeleton — inputs, rules, replay log, snapshots — is
+:mod:`qlap_runtime.runtime.actor`'s.
 """
 
 from __future__ import annotations
@@ -12,12 +15,14 @@ from typing import Any
 
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.schema import QState, Sense
-from qlap_runtime.qlap.perception import InvalidObservation
+from qlap_runtime.qlap.perception import InvalidObservation, Percept, Perception
 from qlap_runtime.runtime.actor import Actor, ActorBase
+from qlap_runtime.runtime.batches import hands_over
 from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.snapshot import save_perception
 from qlap_runtime.runtime.start_state import start_perception
 
+from .chain import Chain
 from .convert import QStateCodec, apply_landmark_ops, rejection_as_sent
 
 NAME = "perception"
@@ -27,32 +32,52 @@ CONSUMERS = ("contingency", "landmarks", "executor")
 class PerceptionActor(ActorBase):
     """The perception actor: its quantity spaces, inputs and outputs, one step of its loop."""
 
-    def __init__(self, session: Any, ctx: RunContext) -> None:
-        self.ctx = ctx
+    def __init__(self, session: Any, ctx: RunContext, chain: Chain | None = None,
+                 shared: Perception | None = None) -> None:
+        """``chain``: hosted on the step chain, perceiving with ``shared``, the executor's
+        learner's perception, whose landmarks that learner's deltas change (decision 83)."""
+        self.ctx, self.chain = ctx, chain
         self.actor = actor = Actor(session, ctx, NAME)
-        self.per = start_perception(ctx, actor.resume)
+        self.per = shared if shared is not None else start_perception(ctx, actor.resume)
         self.codec = QStateCodec(self.per.table)
         self.rejected_obs = 0
         # On the step chain: sense(t + 1) exists only once qstate(t) went out (window 1;
         # unknown variables are rejected by perceive, as in the synchronous loop).
-        actor.input("sense", window=1)
+        self.inbox = actor.input("sense", window=1, hosted=chain is not None)
         self.deltas = actor.deltas(len(self.per.table))
-        self.out = actor.output("qstate")
+        # Logged while a consumer may ask for a qstate again: the learners, unless the
+        # executor hands them their batches (then nobody but a listener reads it).
+        self.out = actor.output("qstate", logged=chain is None or not hands_over(ctx))
         actor.restore_log(self.out, actor.resume.state.get("qstate", []))
         self.last_observed = int(actor.resume.state.get("last_observed", ctx.start - 1))
 
     async def step(self, t: int) -> bool:
         """``sense(t)`` -> ``qstate(t)``; False when the run ended before step t."""
-        actor, ctx = self.actor, self.ctx
-        msg = await actor.receive(t)
-        if msg is None:
-            return False
+        actor, ctx, chain = self.actor, self.ctx, self.chain
+        if chain is None:
+            msg = await actor.receive(t)
+            if msg is None:
+                return False
+        else:
+            msg = chain.sense
+            assert msg is not None
+            assert msg.step == t
+            self.inbox.discard(t)               # the rules on anything else that came
         seen = self.last_observed
         if seen >= ctx.start and seen > self.deltas.book.last:
             # Deltas applied at the boundary of the last observed step change the landmarks
-            # used from t on.
-            apply_landmark_ops(self.per, await self.deltas.due_now(seen, ctx.realtime))
-        self.out.put(t, self.perceive(t, msg))
+            # used from t on (hosted: the executor's learner applied them to `per`).
+            due = await self.deltas.due_now(seen, ctx.realtime)
+            if chain is None:
+                apply_landmark_ops(self.per, due)
+        p, rejected = self.perceive(t, msg)
+        if chain is not None:
+            chain.perceived(p, rejected)
+        if p is None or self.out.wanted:
+            self.out.put(t, QState(t, {}, (), {}, rejected=rejected) if p is None
+                         else self.codec.message(p))
+        else:
+            self.out.skip()
         actor.slot.done(t)
         if actor.snapshot_due(t):
             # The qstate log after the oldest consumer snapshot goes with it: a consumer
@@ -63,8 +88,8 @@ class PerceptionActor(ActorBase):
                            last_observed=self.last_observed, qstate=self.out.saved(since))
         return True
 
-    def perceive(self, t: int, msg: Sense) -> QState:
-        """The qualitative state of ``sense(t)``, or its rejection (every actor skips t)."""
+    def perceive(self, t: int, msg: Sense) -> tuple[Percept | None, str]:
+        """The percept of ``sense(t)``, or why it is rejected (every actor skips t)."""
         per = self.per
         try:
             p = per.perceive(t, per.vector(msg.values), copy=False,
@@ -74,9 +99,9 @@ class PerceptionActor(ActorBase):
             self.rejected_obs += 1
             self.deltas.book.skipped.add(t)
             self.actor.counter.reject(keys.key(self.ctx.run_id, "sense"), why)
-            return QState(t, {}, (), {}, rejected=why[:500])
+            return None, why[:500]
         self.last_observed = t
-        return self.codec.message(p)
+        return p, ""
 
     async def finish(self) -> dict[str, Any]:
         """After the last step: the qstate log stays open for the learners behind."""

@@ -23,6 +23,7 @@ from qlap_runtime.runtime.context import RunContext
 from qlap_runtime.runtime.outputs import write_failure_summary
 from qlap_runtime.runtime.rules import motor_rule
 
+from .chain import Chain
 from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
 from .convert import SenseCodec, world_view
 from .resume import start_world
@@ -32,40 +33,53 @@ OTHERS_END_S = 120.0
 """How long a failed world waits for the other actors to write their outputs."""
 VIEW_S = 0.1
 """The UI's world panel is published at most this often."""
+YIELD_S = 0.001
+"""The hosted step chain lets the run's other tasks (learners, planner, controls, viewers) run
+at least this often (docs/decisions.md 85): a trio checkpoint is a turn of the scheduler with
+an epoll poll, which every step paid."""
 
 
 class WorldActor(ActorBase):
-    """The world, its clock and its topics. In the embedded placement it hosts the rest of the
-    step chain: ``perception``'s step, then ``executor``'s, right after ``sense(t)``, their
-    inputs already in their inboxes (docs/decisions.md 52)."""
+    """The world, its clock and its topics. With ``chain`` it hosts the rest of the step
+    chain: ``perception``'s step, then ``executor``'s, right after ``sense(t)``, the values
+    passing in memory (:class:`~actors.chain.Chain`, docs/decisions.md 52, 84)."""
 
     def __init__(self, session: Any, ctx: RunContext, world: Any,
-                 perception: ActorBase | None = None, executor: Any = None) -> None:
+                 perception: ActorBase | None = None, executor: Any = None,
+                 chain: Chain | None = None) -> None:
         self.ctx, self.world, self.perception, self.executor = ctx, world, perception, executor
+        self.chain = chain
         self.actor = actor = Actor(session, ctx, NAME, obey=True)
         self.obs, self.applied = start_world(world, ctx)
         self.senses = SenseCodec(world.variables)
         # A motor for a step not sensed yet cannot be the executor's (lockstep window 0).
-        self.motors = actor.input("motor", window=0, rule=motor_rule(world.variables), end=False)
-        self.sense = actor.output("sense")
+        self.motors = actor.input("motor", window=0, rule=motor_rule(world.variables), end=False,
+                                  hosted=chain is not None)
+        self.sense = actor.output("sense", logged=chain is None)
         self.view, self.end_marker = actor.publisher("world"), actor.publisher("control")
         self.clock = world_clock(ctx.realtime, ctx.hz, actor.controls, actor.counter, actor.slot)
         self.stats: dict[str, Any] = {"steps": 0}
         self.failure: WorldFailed | None = None
-        self.last_view = 0.0
+        self.last_view = self.last_yield = 0.0
 
     async def step(self, t: int) -> bool:
         """``sense(t)``, the hosted steps, ``motor(t)``, the physics; False: the run ends."""
         if not await self.clock.before(t):
             return False
         discontinuity = bool(getattr(self.world, "discontinuity", False))
-        self.sense.put(t, self.senses.message(t, self.obs, self.applied, discontinuity))
-        if self.perception is not None:
-            await self.perception.step(t)
-        if self.executor is not None:
+        sense = self.senses.message(t, self.obs, self.applied, discontinuity)
+        self.sense.put(t, sense)
+        if (chain := self.chain) is None:
+            motor = await self.clock.motor(self.motors, t)
+        else:
+            chain.sense = sense
+            await self.perception.step(t)       # type: ignore[union-attr]
             await self.executor.step(t)
-            await trio.lowlevel.checkpoint()    # yield once a step: learners, controls, viewers
-        motor = await self.clock.motor(self.motors, t)
+            if (now := time.perf_counter()) - self.last_yield >= YIELD_S:
+                self.last_yield = now
+                await trio.lowlevel.checkpoint()    # learners, controls, viewers
+            motor, chain.motor = chain.motor, None
+            self.motors.discard(t)              # the rules on anything else that came
         if motor is not None:
             self.applied = dict(motor.values)
         self.stats["steps"] += 1
@@ -120,14 +134,15 @@ class WorldActor(ActorBase):
 
 
 async def run(session: Any, ctx: RunContext, ready: trio.Event | None = None,
-              perception: ActorBase | None = None, executor: Any = None) -> dict[str, Any]:
-    """The world actor's task; in the embedded placement it hosts ``perception`` and
-    ``executor`` (the step chain in one task)."""
+              perception: ActorBase | None = None, executor: Any = None,
+              chain: Chain | None = None) -> dict[str, Any]:
+    """The world actor's task; with ``chain`` it hosts ``perception`` and ``executor`` (the
+    step chain in one task)."""
     import worlds
 
     world = worlds.make(ctx.world)
     try:
-        with WorldActor(session, ctx, world, perception, executor) as me:
+        with WorldActor(session, ctx, world, perception, executor, chain) as me:
             return await me.run(ready)
     except WorldFailed:
         raise

@@ -52,6 +52,11 @@ LOCKSTEP_TOPICS = frozenset({"sense", "qstate", "motor", "delta/dbn", "delta/lan
                              "batchctx", "planreq", "delta/plans"})
 """Topics on the lockstep chain, published ``express`` (sent at once, not batched)."""
 
+QUIET_S = 0.05
+"""How long a lockstep topic's publisher trusts zenoh's answer that no other session listens
+before asking again (:meth:`Publisher.wanted`; zenoh's matching listener reports a new
+subscriber in any case; docs/decisions.md 84)."""
+
 T = TypeVar("T")
 _DONE: Any = object()
 
@@ -223,13 +228,18 @@ class TrioSubscriber:
 
     Malformed messages are counted in ``counter`` and left out of the batches. With
     ``decode=False`` batches hold undecoded :class:`Received` items whose ``msg`` is None.
+    ``local=False``: the messages of this session's :class:`Publisher` s are not handed to it
+    (an actor of the hosted step chain takes them in memory, docs/decisions.md 84); raw puts
+    and other sessions' messages still come.
     """
 
     def __init__(self, session: zenoh.Session, key_expr: str, *,
-                 counter: RejectionCounter | None = None, decode: bool = True) -> None:
+                 counter: RejectionCounter | None = None, decode: bool = True,
+                 local: bool = True) -> None:
         self.key_expr = key_expr
         self.counter = counter if counter is not None else RejectionCounter()
         self._decode = decode
+        self.local = local
         self._inbox: TrioInbox[tuple[str, bytes, int, Message | None]] = TrioInbox()
         self._routes = LocalRoutes.of(session)
         self._sub = session.declare_subscriber(
@@ -366,7 +376,7 @@ class LocalRoutes:
         with self._lock:
             ke = zenoh.KeyExpr(key)
             return self.version, [s for s in self._subs
-                                  if zenoh.KeyExpr(s.key_expr).intersects(ke)]
+                                  if s.local and zenoh.KeyExpr(s.key_expr).intersects(ke)]
 
     def tag(self, version: int) -> bytes:
         return self.prefix + str(version).encode()
@@ -425,6 +435,7 @@ class Publisher:
         if self.remote_only:
             self._matching = self._pub.declare_matching_listener(self._on_matching)
             self.remote = bool(self._pub.matching_status.matching)
+        self._quiet_until = 0.0
         self.skipped = 0
         """Zenoh puts left out: nobody outside the session listened."""
         self._routes = LocalRoutes.of(session)
@@ -450,21 +461,50 @@ class Publisher:
             return True
         return self.faults.put(partial(self._send, msg=msg), payload)   # lost or late
 
-    def _send(self, payload: bytes, msg: Message | None = None) -> None:
-        """Hand ``payload`` (and ``msg``, the message it encodes, if known) to the subscribers
-        of this session, then put it on Zenoh for every other subscriber, tagged so that this
-        session's own drop their second copy."""
+    @property
+    def wanted(self) -> bool:
+        """Whether a :meth:`put` now would reach anyone: a :class:`TrioSubscriber` of this
+        session, another session's subscriber (a lockstep topic: while one listens; any other
+        topic: always), or an injected fault. False lets a writer skip the encoding, and even
+        the message (docs/decisions.md 84)."""
+        if self.faults is not None or not self.remote_only or self._local_subs():
+            return True
+        return self._remote_now()
+
+    def _remote_now(self) -> bool:
+        """Whether another session listens: the listener's answer, else zenoh's matching
+        status (the listener's False may lag zenoh's routing: a subscription just declared),
+        whose no is trusted for :data:`QUIET_S` (a query is 1.1 µs, and the step chain asks
+        for three topics a step)."""
+        if self.remote:
+            return True
+        now = time.monotonic()
+        if now < self._quiet_until:
+            return False
+        if self._pub.matching_status.matching:
+            return True
+        self._quiet_until = now + QUIET_S
+        return False
+
+    def _local_subs(self) -> list[TrioSubscriber]:
         version, local, tag = self._local
         if version != self._routes.version:
             version, local = self._routes.matching(self.key)
             tag = self._routes.tag(version)
             self._local = (version, local, tag)
+        return local
+
+    def _send(self, payload: bytes, msg: Message | None = None) -> None:
+        """Hand ``payload`` (and ``msg``, the message it encodes, if known) to the subscribers
+        of this session, then put it on Zenoh for every other subscriber, tagged so that this
+        session's own drop their second copy."""
+        local = self._local_subs()
+        tag = self._local[2]
         for sub in local:
             sub.deliver(self.key, payload, msg)
         if self.remote_only:
-            # Other sessions only (no second local copy). The listener's False may lag
-            # zenoh's routing (a subscription just declared): zenoh's own answer decides then.
-            if self.remote or self._pub.matching_status.matching:
+            # Other sessions only (no second local copy), while one listens.
+            if self._remote_now():
                 self._pub.put(payload)
             else:
                 self.skipped += 1

@@ -55,14 +55,17 @@ async def _run_unit(unit: str, session: Any, ctx: Any,
                     ready: trio.Event | None = None) -> dict[str, Any]:
     """One task of a process (:func:`_units`); returns ``{actor: result}``."""
     from actors import executor, learning, learning_pair, perception, planner, world
+    from actors.chain import Chain
 
     if unit == "chain":                     # world, perception, executor: one task
-        with perception.PerceptionActor(session, ctx.for_actor("perception")) as per, \
-                executor.ExecutorActor(session, ctx.for_actor("executor"),
-                                       hosted=True) as ex:
+        chain = Chain()                     # their hops in memory, one perception a step
+        with executor.ExecutorActor(session, ctx.for_actor("executor"), chain=chain) as ex, \
+                perception.PerceptionActor(session, ctx.for_actor("perception"), chain,
+                                           shared=ex.agent.learner.perception) as per:
             async with trio.open_nursery() as nursery:
                 nursery.start_soon(ex.between_steps)
-                result = await world.run(session, ctx, ready, perception=per, executor=ex)
+                result = await world.run(session, ctx, ready, perception=per, executor=ex,
+                                         chain=chain)
                 nursery.cancel_scope.cancel()
             return {"world": result, "perception": per.result, "executor": ex.result}
     if unit == "learners":                  # both learners on one learner

@@ -137,6 +137,21 @@ class ModelLearner:
             self._drop_open_windows()
         return self._learn_step(self.perception.ingest(p))
 
+    def observe_own(self, p: Percept) -> Percept:
+        """Learn from a percept this learner's own perception has just computed and remembered
+        (``self.perception.perceive``; the perception actor hosted beside the executor
+        perceives with it, docs/decisions.md 83): Algorithm 2 lines 4–5 exactly as
+        :meth:`observe` does them after perceiving, without ingesting the percept again."""
+        if p.step <= self.step:
+            raise ValueError(f"steps must increase: got {p.step} after {self.step}")
+        if p.discontinuity:
+            self._drop_open_windows()
+        self._own = p
+        try:
+            return self._learn_step(p)
+        finally:
+            self._own = None
+
     def _learn_step(self, p: Percept) -> Percept:
         self.step = p.step
         if self.pairs_kept:

@@ -88,27 +88,57 @@ class Resume:
 
 
 class Output:
-    """One output topic: published, and kept in a replay log for restarted consumers."""
+    """One output topic: published, and kept in a replay log for restarted consumers.
 
-    def __init__(self, session: Any, ctx: RunContext, topic: str, actor: str = "") -> None:
+    ``logged=False``: no replay log (every consumer takes the messages in memory, the hosted
+    step chain's ``sense`` and ``motor``); a message then is encoded and put only while
+    somebody listens (:attr:`wanted`, docs/decisions.md 84)."""
+
+    def __init__(self, session: Any, ctx: RunContext, topic: str, actor: str = "",
+                 logged: bool = True) -> None:
         self.pub = Publisher(session, ctx.run_id, topic, faults=Faults.of(ctx.faults),
                              tag=actor)
-        self.log = ReplayLog(session, ctx.run_id, topic, ctx.replay_keep)
+        self._log = ReplayLog(session, ctx.run_id, topic, ctx.replay_keep) if logged else None
         self.key = keys.key(ctx.run_id, topic)
+        self.unsent = 0
+        """Messages neither logged nor put: nobody listened."""
+
+    @property
+    def log(self) -> ReplayLog:
+        """The replay log (an output made with ``logged``)."""
+        assert self._log is not None, f"{self.key} keeps no replay log"
+        return self._log
+
+    @property
+    def wanted(self) -> bool:
+        """Whether :meth:`put` would do anything (a log, or a listener): a writer may skip
+        building a message nobody reads."""
+        return self._log is not None or self.pub.wanted
 
     def put(self, step: int, msg: Message) -> None:
         """Publish ``msg`` and log it under ``step`` (not logged only when an injected fault
         loses it for good, :class:`~qlap_runtime.bus.faults.Faults` ``lost``)."""
-        if self.pub.put(msg) or self.pub.faults is None or not self.pub.faults.lost:
-            self.log.append(step, msg, self.pub.payload)
+        if self._log is None:
+            if self.pub.wanted:
+                self.pub.put(msg)
+            else:
+                self.unsent += 1
+        elif self.pub.put(msg) or self.pub.faults is None or not self.pub.faults.lost:
+            self._log.append(step, msg, self.pub.payload)
+
+    def skip(self) -> None:
+        """A message not built: nobody wanted it (:attr:`wanted`)."""
+        self.unsent += 1
 
     def saved(self, since: int | None = None) -> list[list]:
         """The logged ``[step, payload]`` entries from step ``since`` on, for a snapshot
         (:meth:`Actor.restore_log` serves them again)."""
-        return [[s, p.decode()] for s, p in self.log.payloads(since)]
+        return [] if self._log is None \
+            else [[s, p.decode()] for s, p in self._log.payloads(since)]
 
     def close(self) -> None:
-        self.log.close()
+        if self._log is not None:
+            self._log.close()
         self.pub.close()
 
 
@@ -134,12 +164,16 @@ class Actor:
 
     # ------------------------------------------------------------------------- set-up
     def input(self, topic: str, *, window: int | None, rule: Rule | None = None,
-              first: int | None = None, end: bool = True) -> StepInbox:
+              first: int | None = None, end: bool = True, hosted: bool = False) -> StepInbox:
         """A step inbox of ``topic`` from step ``first`` (default: the step after the resume
         point); ``window``: the lockstep window (ignored under the realtime clock); ``end``:
-        the world's end marker ends a wait for a later step (not for the world itself)."""
+        the world's end marker ends a wait for a later step (not for the world itself);
+        ``hosted``: the actor takes the topic's messages in memory from the actor before it
+        on the hosted step chain, so this session's own messages are not handed to the inbox,
+        which only keeps the rules on what else comes (:meth:`StepInbox.discard`)."""
         sub = self._stack.enter_context(
-            TrioSubscriber(self.session, keys.key(self.ctx.run_id, topic), counter=self.counter))
+            TrioSubscriber(self.session, keys.key(self.ctx.run_id, topic), counter=self.counter,
+                           local=not hosted))
         # In lockstep a step that does not come in time is asked for again from the writer's
         # replay log (a lost message; a restarted writer or consumer).
         refill = None if self.ctx.realtime else self._refill(topic)
@@ -159,9 +193,9 @@ class Actor:
         self._stack.callback(self._deltas.close)
         return self._deltas
 
-    def output(self, topic: str) -> Output:
-        """A published topic with its replay log."""
-        out = Output(self.session, self.ctx, topic, self.name)
+    def output(self, topic: str, *, logged: bool = True) -> Output:
+        """A published topic with its replay log (``logged``, :class:`Output`)."""
+        out = Output(self.session, self.ctx, topic, self.name, logged)
         self._stack.callback(out.close)
         self._outputs.append(out)
         return out

@@ -233,11 +233,14 @@ class HandedCopies:
         self.last: dict[str, int] = {}
         """A run's last step, once its executor is done."""
 
-    def put(self, run_id: str, step: int, learner: ModelLearner | None) -> None:
-        """Hand over a batch copy of ``learner`` (made now: the learner goes on); None: step
-        ``step`` was rejected, no batch starts there."""
-        self.copies[(run_id, step)] = None if learner is None else copy_for_batch(learner)
+    def put(self, run_id: str, step: int, learner: ModelLearner | None
+            ) -> ModelLearner | None:
+        """Hand over a batch copy of ``learner`` (made now: the learner goes on) and return
+        it; None: step ``step`` was rejected, no batch starts there."""
+        work = self.copies[(run_id, step)] = None if learner is None \
+            else copy_for_batch(learner)
         self._wake(lambda key: key == (run_id, step))
+        return work
 
     def end(self, run_id: str, last: int) -> None:
         """The run's executor took no step after ``last``."""

@@ -106,6 +106,8 @@ class StepInbox:
         self.end = end
         """The run's controls: :meth:`get` raises :class:`RunEnded` for a step after the last
         one the world announced (``quit``)."""
+        self.seen = 0
+        """The subscriber's messages counted when :meth:`discard` last looked."""
         self.duplicates = 0
         """Messages dropped because their step was already consumed."""
         self.refills = 0
@@ -144,6 +146,18 @@ class StepInbox:
         """Keep every message that has arrived, without waiting."""
         for r in self.sub.receive_nowait():
             self.add(r.msg, len(r.payload))
+
+    def discard(self, step: int) -> None:
+        """A hosted input (:meth:`~qlap_runtime.runtime.actor.Actor.input`): keep the rules on
+        what has arrived (counted, as :meth:`get` would) and forget it up to ``step``, whose
+        message the actor took in memory. Nothing to do, the common case, is one comparison:
+        nothing arrived since the last call."""
+        if self.sub.received != self.seen:
+            self.seen = self.sub.received
+            self.drain()
+        if self.buf:
+            self.drop_before(step + 1)
+        self.next = max(self.next, step + 1)
 
     def ready(self, step: int) -> bool:
         """Whether step ``step``'s message is here (what has arrived is kept first)."""

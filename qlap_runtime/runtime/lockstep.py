@@ -46,13 +46,15 @@ class DeltaBook:
         self.received[(delta.computed_at, kind)] = delta
 
     def due_keys(self, step: int) -> list[tuple[int, str]]:
-        """(computed_at, kind) of the deltas to apply at the boundary of ``step``."""
+        """(computed_at, kind) of the deltas to apply at the boundary of ``step``: those of
+        the batch steps (the positive multiples of ``dbn_period``) in (last step asked,
+        step] − L, visited directly (the range spans every step since the last delta)."""
+        lag, period = self.params.batch_lag, self.params.dbn_period
+        lo, hi = max(self.last + 1 - lag, 1), step - lag
         out = []
-        for s in range(self.last + 1, step + 1):
-            computed = s - self.params.batch_lag
-            if computed in self.skipped:
-                continue
-            out += [(computed, kind) for kind in batch_kinds(self.params, computed)]
+        for computed in range(-(-lo // period) * period, hi + 1, period):
+            if computed not in self.skipped:
+                out += [(computed, kind) for kind in batch_kinds(self.params, computed)]
         return out
 
     def none_due(self, step: int) -> bool:

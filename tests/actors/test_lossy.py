@@ -64,9 +64,11 @@ def test_lost_deltas_and_batch_contexts_are_fetched_again(tmp_path):
 def test_a_message_lost_for_good_ends_with_one_line_naming_the_wait(tmp_path):
     """``lost``: the dropped ``qstate`` is missing from perception's replay log too, so no one
     can recover it: the watchdog stops the run within its ``stall_s`` and names who waits for
-    which step."""
+    which step. With L = 0 the learners read ``qstate`` from the bus (with a lag they take the
+    executor's batch copies, and the executor its percept in memory: decisions 72, 84)."""
     faults = Faults(drop=0.01, topics=("qstate",), seed=2, lost=True).to_json()
-    ctx = context(tmp_path, BASE, 7, "t-lossy-lost").with_(faults=faults, stall_s=3)
+    ctx = context(tmp_path, BASE.replace(batch_lag=0), 7, "t-lossy-lost").with_(
+        faults=faults, stall_s=3)
     t0 = time.monotonic()
     with pytest.raises(BaseException) as info:  # noqa: PT011 - RunStalled, maybe in a group
         run_embedded(ctx)

@@ -45,7 +45,7 @@ def test_a_light_request_compiles_what_a_deep_copy_compiles(tmp_path, monkeypatc
 
     put, lights = LocalRequests.put, []
 
-    def light(self, run_id, agent, step, light=False):
+    def light(self, run_id, agent, step, light=False, batch=None):
         lights.append(step)
         return put(self, run_id, agent, step, True)
 
@@ -56,4 +56,29 @@ def test_a_light_request_compiles_what_a_deep_copy_compiles(tmp_path, monkeypatc
     expected = agent_run.sync_knowledge("core2d", STEPS, 5, params)
     run_embedded(RunContext("t-light", "core2d", STEPS, 5, params, out=tmp_path))
     assert lights == list(range(500, STEPS, 500))
+    assert (tmp_path / "knowledge.json").read_text() == expected
+
+
+def test_the_planner_compiles_on_the_learners_batch_copy(tmp_path, monkeypatch):
+    """Embedded with a lag (decision 86): at each batch step the executor copies its learner
+    once — the learners' batch computes on the copy, applying its operations, and the planner
+    then compiles on that same copy — and the knowledge is the synchronous loop's."""
+    from qlap_runtime.qlap.learner import ModelLearner
+
+    copies: list[int] = []
+    batch_copy = ModelLearner.batch_copy
+
+    def counted(self):
+        copies.append(self.step)
+        return batch_copy(self)
+
+    monkeypatch.setattr(ModelLearner, "batch_copy", counted)
+    world = worlds.make("core2d")
+    params = params_for_world(world, PARAMS)
+    world.close()
+    expected = agent_run.sync_knowledge("core2d", STEPS, 5, params)
+    copies.clear()
+    summary = run_embedded(RunContext("t-one-copy", "core2d", STEPS, 5, params, out=tmp_path))
+    assert summary["actors"]["planner"]["compilations"] == len(range(500, STEPS - 200, 500))
+    assert copies == list(range(500, STEPS, 500))        # one copy a batch step
     assert (tmp_path / "knowledge.json").read_text() == expected

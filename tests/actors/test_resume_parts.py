@@ -42,6 +42,13 @@ def _check(tmp_path, placement: str, seed: int) -> None:
     final = tmp_path / "run" / "checkpoints" / "final"
     assert (final / "world.json").is_file() and (final / "stats.json").is_file()
     assert not (tmp_path / "run" / "checkpoints" / ".final-parts").exists()
+    # The last step's checkpoint, written after the loop from the agent itself (decision
+    # 87): whole, and final is a link to it (nothing changed the agent since).
+    last = tmp_path / "run" / "checkpoints" / f"step-{STEPS:07d}"
+    assert {"agent.json", "learner.json", "world.json", "stats.json"} <= \
+        {p.name for p in last.iterdir()}
+    assert final.is_symlink() and final.resolve() == last.resolve()
+    assert load_agent(last).step_count == STEPS - 1
 
 
 def test_an_embedded_checkpoint_resumes_as_the_uninterrupted_run(tmp_path):

@@ -20,7 +20,7 @@ from qlap_runtime.bus.bridge import (
     fetch,
 )
 from qlap_runtime.bus.config import client_config
-from qlap_runtime.bus.schema import CallList, DeltaMsg, Motor, QState, Sense, decode
+from qlap_runtime.bus.schema import CallList, DeltaMsg, Motor, QState, Sense, decode, encode
 from qlap_runtime.qlap.delta import Delta
 
 N_BURST = 20_000
@@ -229,3 +229,49 @@ async def test_other_sessions_get_a_locally_handed_message_once(two_clients, run
         await trio.sleep(0.3)
         assert got == [0, 1, 2]
         assert [r.msg.step for r in local.receive_nowait()] == [0, 1, 2]
+
+
+async def test_a_hosted_input_gets_foreign_messages_only_and_an_unheard_output_sends_nothing(
+        two_clients, run_id):
+    """Decision 84. A ``local=False`` subscriber (a hosted actor's input: it takes the chain's
+    messages in memory) is not handed its session's published messages but still gets a raw
+    put on that session (a forgery, for the rules). An output without a replay log encodes
+    nothing while nobody listens (``wanted`` False, counted in ``unsent``) and puts once another
+    session subscribes; a logged one always logs."""
+    from qlap_runtime.qlap import Params
+    from qlap_runtime.runtime.actor import Output
+    from qlap_runtime.runtime.context import RunContext
+
+    here, there = two_clients
+    key = keys.key(run_id, "motor")
+    ctx = RunContext(run_id, "core2d", 10, 0, Params())
+    with TrioSubscriber(here, key, local=False) as hosted:
+        out, logged = Output(here, ctx, "motor", logged=False), Output(here, ctx, "qstate")
+        try:
+            assert not out.wanted and logged.wanted
+            for t in range(3):
+                out.put(t, Motor(t, {"u_x": 0.1}))
+                logged.put(t, QState(t, {}, (), {}))
+            assert out.unsent == 3 and out.pub.sent == 0
+            assert [s for s, _ in logged.log.payloads()] == [0, 1, 2]
+            here.put(key, encode(Motor(7, {"u_x": 0.5})))     # raw: not a Publisher's
+            with trio.fail_after(10):
+                got = await hosted.receive_batch()
+            assert [r.msg.step for r in got] == [7]
+            remote: list[int] = []
+            handle = there.declare_subscriber(
+                key, lambda s: remote.append(decode(str(s.key_expr), s.payload.to_bytes()).step))
+            with trio.fail_after(10):
+                while not out.wanted:  # noqa: ASYNC110 - zenoh's matching listener
+                    await trio.sleep(0.01)
+            out.put(3, Motor(3, {"u_x": 0.1}))
+            with trio.fail_after(10):
+                while not remote:  # noqa: ASYNC110 - a zenoh callback appends
+                    await trio.sleep(0.01)
+            assert remote == [3] and out.unsent == 3
+            await trio.sleep(0.2)
+            assert hosted.receive_nowait() == []     # the published ones never reach it
+            handle.undeclare()
+        finally:
+            out.close()
+            logged.close()

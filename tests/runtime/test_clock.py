@@ -148,3 +148,20 @@ async def test_the_realtime_loop_freezes_start_up_objects_and_shortens_the_gil_s
         assert gc.get_freeze_count() == 0
         assert sys.getswitchinterval() == before
         assert set(stats) == {"loop_s", "paused_s", "wait_s"}
+
+
+async def test_the_lockstep_loop_freezes_start_up_objects_too(embedded, clock):
+    """Decision 85: a full collection scanned start-up's objects (the session, the libraries'
+    and the agent's) in lockstep too, 0.37 s of a 30,000-step embedded run."""
+    import gc
+
+    counter = RejectionCounter("world")
+    with Controls(embedded, CTX, counter) as controls:
+        lc = LockstepClock(controls, counter)
+        lc.start(0)
+        try:
+            assert gc.get_freeze_count() > 0
+            assert await lc.before(0)
+        finally:
+            lc.stop()
+        assert gc.get_freeze_count() == 0

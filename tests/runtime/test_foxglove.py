@@ -116,6 +116,9 @@ def test_embedded_core2d_run_recording(tmp_path):
 
     senses = {m.step: m.values for k, m, _ in read_mcap(out) if k.endswith("/sense")}
     assert sorted(senses) == list(range(2000))
+    for topic in ("qstate", "motor"):       # the hosted chain's hops, beside it on the bus
+        steps = [m.step for k, m, _ in read_mcap(out) if k.endswith(f"/{topic}")]
+        assert sorted(steps) == list(range(2000)), topic
     scenes = _scenes(out)
     assert 5 <= len(scenes) < 2000
     gaps = np.diff([t for t, _, _ in scenes])
