@@ -36,17 +36,18 @@ class ExecutorActor(ActorBase):
     ``motor(t)`` from the chain. Either way :meth:`between_steps` runs beside it."""
 
     def __init__(self, session: Any, ctx: RunContext, *, chain: Chain | None = None) -> None:
-        self.ctx, self.chain, self.hosted, self.steps_done = ctx, chain, chain is not None, 0
+        self.ctx, self.chain, self.steps_done = ctx, chain, 0
+        hosted = chain is not None
         self.actor = actor = Actor(session, ctx, NAME, obey=True)
         self.agent, self.checkpoint = load_executor_agent(ctx, actor.resume)
         agent = self.agent
         self.handover = HandOver(ctx, agent.learner)    # decision 72
         self.codec = QStateCodec(agent.table)
         self.inbox = actor.input("qstate", window=1, rule=qstate_rule(self.codec.names),
-                                 hosted=self.hosted)
+                                 hosted=hosted)
         self.deltas = actor.deltas(len(agent.table))
         self.links = BatchLinks(actor, ctx, self.deltas.book)
-        self.motors = actor.output("motor", logged=not self.hosted)   # hosted: the world's
+        self.motors = actor.output("motor", logged=not hosted)   # hosted: the world's
         self.controls = Controls(session, ctx, agent, actor)
         self.files = Files(ctx, agent, actor.resume)
         self.result: dict[str, Any] | None = None
@@ -55,7 +56,7 @@ class ExecutorActor(ActorBase):
         await self.actor.start()
         if self.checkpoint is not None:
             self.links.resumed(self.agent)
-        if self.hosted:                         # between steps until the world calls step
+        if self.chain is not None:      # between steps until the world calls step
             self.controls.commands.at_boundary = True
 
     async def between_steps(self) -> None:
@@ -113,7 +114,7 @@ class ExecutorActor(ActorBase):
         if actor.snapshot_due(t):
             actor.snapshot(t, lambda d: save_agent(agent, d), rejected=self.files.rejected,
                            **self.links.logs())
-        if self.hosted:
+        if self.chain is not None:
             commands.at_boundary = True         # the world goes on: commands may apply
         return True
 

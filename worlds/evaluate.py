@@ -58,9 +58,10 @@ def run_trials(
         steps = 0
         ended = False
         outcome = "timeouts"
-        first = task.goal(world, obs)
+        first: Goal | None = None               # the goal the trial started with
         while steps < task.max_steps:
             goal = task.goal(world, obs)
+            first = first or goal
             obs = world.step(policy(world, obs, goal, rng))
             steps += 1
             if task.is_success(world, obs):
@@ -81,7 +82,8 @@ def run_trials(
             timeouts += 1
         rewards.append(total)
         steps_taken.append(steps)
-        g = by_goal.setdefault(f"{first.variable}={first.value}", {
+        key = "none" if first is None else f"{first.variable}={first.value}"
+        g = by_goal.setdefault(key, {
             "trials": 0, "successes": 0, "failures": 0, "timeouts": 0, "reward": 0.0})
         g["trials"] += 1
         g[outcome] += 1

@@ -144,6 +144,10 @@ class ModelLearner:
         :meth:`observe` does them after perceiving, without ingesting the percept again."""
         if p.step <= self.step:
             raise ValueError(f"steps must increase: got {p.step} after {self.step}")
+        return self._learn_own(p)
+
+    def _learn_own(self, p: Percept) -> Percept:
+        """Lines 4–5 on a percept this learner's perception computed and remembered."""
         if p.discontinuity:
             self._drop_open_windows()
         self._own = p
@@ -166,12 +170,8 @@ class ModelLearner:
     def _observe(self, step: int, x: np.ndarray, discontinuity: bool = False) -> Percept:
         if step <= self.step:
             raise ValueError(f"steps must increase: got {step} after {self.step}")
-        percept = self.perception.perceive(step, x, copy=False, discontinuity=discontinuity)
-        if discontinuity:
-            self._drop_open_windows()
-        self._own = percept
-        p = self._learn_step(percept)
-        self._own = None
+        p = self._learn_own(self.perception.perceive(step, x, copy=False,
+                                                     discontinuity=discontinuity))
         if not self.auto_batches:
             return p
         while self.pending_deltas and self.pending_deltas[0].apply_at <= step:
