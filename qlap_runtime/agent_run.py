@@ -156,7 +156,7 @@ def goal_index(agent: Agent, goal: Any) -> tuple[int, int]:
     return agent.set_goal(var, goal.value)
 
 
-def goal_policy(agent: Agent, world: Any, task_name: str
+def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None
                 ) -> Callable[[Any, Mapping[str, float], Any, np.random.Generator],
                               Mapping[str, float]]:
     """The agent as a policy for ``worlds.evaluate.run_trials`` (§7.2.1), learning off.
@@ -167,6 +167,10 @@ def goal_policy(agent: Agent, world: Any, task_name: str
     has learned changes, except that plans' Sarsa(λ) adapts within a trial (§5.2.2) and the
     next trial undoes it (``Params.sarsa_in_trials``; call :meth:`Agent.end_trial` after the
     last trial; tests/qlap/test_agent.py).
+
+    With ``pursue`` (a ``worlds.base.Goal``) the agent pursues that goal in every trial instead
+    of the task's, while the task still judges the trial: how well one learned action would do
+    the task (``qlap eval --goal``, docs/analysis.md).
     """
     if task_name not in world.tasks:
         raise ValueError(f"{world.name} has no task {task_name!r}; "
@@ -181,6 +185,8 @@ def goal_policy(agent: Agent, world: Any, task_name: str
         if w.step_count == 0:                           # a new trial
             agent.new_episode()
             state["goal"] = None
+        if pursue is not None:
+            goal = pursue
         if goal != state["goal"]:
             state["goal"] = goal
             agent.set_goal(agent.table.index(goal.variable), goal.value, idle=idle)
@@ -192,21 +198,31 @@ def goal_policy(agent: Agent, world: Any, task_name: str
 
 
 def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, seed: int,
-             policy: str = "qlap") -> dict[str, Any]:
+             policy: str = "qlap", pursue: Any = None) -> dict[str, Any]:
     """The §7.2 protocol: ``trials`` trials of a task with the agent in goal mode.
 
     Learning is off during evaluation, so every trial uses the checkpoint's knowledge
     unchanged (:func:`goal_policy`). A trial in which the agent has no plan for the goal moves
-    randomly (or holds the motors at rest when the task says so, §7.9.1).
+    randomly (or holds the motors at rest when the task says so, §7.9.1). With ``pursue`` (a
+    ``worlds.base.Goal``, policy "qlap" only) the agent pursues that goal instead of the
+    task's; the result names it as ``pursued`` ("T_L.dot=+").
     """
     from worlds.evaluate import run_random_trials, run_trials
 
+    if pursue is not None and policy != "qlap":
+        raise ValueError(f"a goal to pursue needs the qlap policy, not {policy!r}")
     if policy == "random":
         res = run_random_trials(world, task_name, trials, seed)
     elif policy == "qlap":
         agent = load_agent(checkpoint)
-        res = run_trials(world, task_name, trials, seed, goal_policy(agent, world, task_name))
+        if pursue is not None:
+            goal_index(agent, pursue)                   # an unknown goal: ValueError, now
+            agent.clear_goal()
+        res = run_trials(world, task_name, trials, seed,
+                         goal_policy(agent, world, task_name, pursue))
         agent.end_trial()                               # the last trial's Sarsa, undone
+        if pursue is not None:
+            res["pursued"] = f"{pursue.variable}={pursue.value}"
     else:
         raise ValueError(f"policy must be 'qlap' or 'random', got {policy!r}")
     rewards = np.asarray(res["rewards"], dtype=float)

@@ -23,3 +23,14 @@ def positive_int(text: str) -> int:
 def count(text: str) -> int:
     """An integer ≥ 0, with a one-line error naming the value."""
     return _integer_at_least(text, 0, "a non-negative integer")
+
+
+def goal_arg(text: str):  # -> worlds.base.Goal
+    """``VAR=VALUE`` (e.g. ``T_L.dot=+``, ``bang=true``) as a world Goal; a one-line error
+    naming the text otherwise. Whether VAR and VALUE exist is checked against the agent."""
+    from worlds.base import Goal
+
+    var, sep, value = text.partition("=")
+    if not sep or not var.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"expected VAR=VALUE (e.g. T_L.dot=+), got {text!r}")
+    return Goal(var.strip(), value.strip())

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .argtypes import count, positive_int
+from .argtypes import count, goal_arg, positive_int
 from .errors import CliError, expected_error, one_line
 
 DEFAULT_ACTOR_LAG = 500
@@ -139,6 +139,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="seed of the trials' set-ups (the same set-ups for every checkpoint)")
     ev.add_argument("--policy", choices=("qlap", "random"), default="qlap",
                     help="qlap (the checkpoint's agent) or random (the random-motor baseline)")
+    ev.add_argument("--goal", type=goal_arg, default=None, metavar="VAR=VALUE",
+                    help="the agent pursues this goal in every trial instead of the task's "
+                         "(e.g. T_L.dot=+ in hit_floor: how often pushing the block left "
+                         "knocks it off); the task still judges each trial")
     ev.add_argument("--json", action="store_true", help="print the result as JSON")
 
     curve = sub.add_parser(
@@ -810,16 +814,20 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     if world is None:
         return 2
     try:
-        res = evaluate(args.checkpoint, world, args.task, args.trials, args.seed, args.policy)
+        res = evaluate(args.checkpoint, world, args.task, args.trials, args.seed, args.policy,
+                       pursue=args.goal)
     except (CheckpointError, ValueError, KeyError) as exc:
-        print(f"qlap eval: {exc}", file=sys.stderr)
+        reason = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"qlap eval: {reason}", file=sys.stderr)
         return 2
     finally:
         world.close()
     if args.json:
         print(json.dumps(res))
     else:
-        print(f"{res['world']} {res['task']} ({res['policy']}, {res['n_trials']} trials): "
+        pursued = f", pursuing {res['pursued']}" if "pursued" in res else ""
+        print(f"{res['world']} {res['task']} ({res['policy']}{pursued}, "
+              f"{res['n_trials']} trials): "
               f"mean reward {res['mean_reward']:.3f} ± {res['stderr_reward']:.3f} (s.e.), "
               f"success rate {res['success_rate']:.2f}")
         goals = res.get("by_goal", {})

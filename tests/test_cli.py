@@ -71,6 +71,16 @@ def test_show_and_eval_on_a_run(tmp_path):
     # Each goal the trials drew, on a line of its own (move_block draws one of three).
     per_goal = [ln.split()[0] for ln in lines[1:]]
     assert len(per_goal) >= 2 and set(per_goal) <= {"T_L.dot=+", "T_R.dot=-", "T_T.dot=+"}
+    r = qlap("eval", "--world", "core2d", "--checkpoint", str(out / "checkpoints" / "final"),
+             "--task", "move_block", "--trials", "2", "--goal", "T_L.dot=+")
+    assert r.returncode == 0, r.stderr
+    assert "pursuing T_L.dot=+" in r.stdout
+    for goal, error in (("nope.dot=+", "unknown variable 'nope.dot'"),
+                        ("T_L.dot", "expected VAR=VALUE"),
+                        ("T_L.dot=up", "cannot name value 'up'")):
+        r = qlap("eval", "--world", "core2d", "--checkpoint",
+                 str(out / "checkpoints" / "final"), "--task", "move_block", "--goal", goal)
+        assert r.returncode == 2 and error in r.stderr, r.stderr
     r = qlap("eval", "--world", "core2d", "--task", "move_block")
     assert r.returncode == 2
     assert "--checkpoint is required" in r.stderr

@@ -89,10 +89,11 @@ class ActionStats:
         return self.reliable
 
     def record(self, success: bool, steps: int | None = None,
-               params: Params | None = None) -> None:
+               params: Params | None = None, practised: bool = True) -> None:
         """Count one termination; ``steps`` is the time from call to termination.
 
-        Appends rel(a) (prior ``params.prior``) to the history and updates the sticky flag.
+        Appends rel(a) (prior ``params.prior``) to the history (with ``params.iac_records``
+        "practice", only for a ``practised`` call) and updates the sticky flag.
         """
         p = params if params is not None else _DEFAULT_PARAMS
         self.calls += 1
@@ -105,8 +106,9 @@ class ActionStats:
                 self.timed_successes += 1
         else:
             self.failures += 1
-        self.history.append(self.rel(p.prior) if p.iac_progress == "cumulative"
-                            else float(success))
+        if practised or p.iac_records == "all":
+            self.history.append(self.rel(p.prior) if p.iac_progress == "cumulative"
+                                else float(success))
         self.sufficiently_reliable(p)
 
     def mean_steps_to_success(self) -> float | None:
@@ -454,9 +456,10 @@ class ActionTable:
         """(key, stats) pairs in key order."""
         return [(k, self._stats[k]) for k in sorted(self._stats)]
 
-    def record(self, key: ActionKey, success: bool, steps: int | None = None) -> None:
+    def record(self, key: ActionKey, success: bool, steps: int | None = None,
+               practised: bool = True) -> None:
         """Record a termination of a(key) with the table's params."""
-        self[key].record(success, steps, self.params)
+        self[key].record(success, steps, self.params, practised)
 
     def is_self(self, var: int, kind: Kind, k: float) -> bool:
         """§6.4 for a change variable ([+] and [−]); Appendix A for a nominal one (all values).

@@ -996,7 +996,7 @@ class Agent:
         idx = self._pick_plan(plans, p) if plans else None
         if idx is None:
             if self.learning:
-                self.actions.record(key, False, None)        # §5.5.2: no (usable) plan
+                self.actions.record(key, False, None, practised)  # §5.5.2: no usable plan
             return FAIL
         plan = plans[idx]
         frame = Frame(key, t, plan_id=plan.id, last_change=t, call_x=p.x.copy(),
@@ -1156,7 +1156,8 @@ class Agent:
         del self.call_list[i:]
         success = status == SUCCESS
         if not f.is_motor and self.learning:
-            self.actions.record(f.key, success, p.step - f.started if success else None)
+            self.actions.record(f.key, success, p.step - f.started if success else None,
+                                f.practised)
             plan = self.plans.get(f.plan_id)
             if plan is not None and f.call_x is not None:
                 plan.record_call(f.call_x, success, self._o_cell(plan, f.call_x))

@@ -155,6 +155,10 @@ class Params:
     calls as recorded at each termination; ``"windowed"``, each call's outcome (1 success, 0
     failure), so rel_new and rel_old are the success rates of the last θ calls and the θ
     before (docs/decisions.md 78)."""
+    iac_records: str = "all"
+    """Which terminations eq. 6.1 records and counts towards its 2θ calls: ``"all"``, every
+    termination of the action, as a sub-action of a plan too; ``"practice"``, only those of
+    calls made to practise it (docs/decisions.md 79)."""
     plan_epsilon: float = 0.05
     """ε of the ε-greedy plan choice (§6.1.2)."""
     policy_epsilon: float = 0.05
@@ -212,6 +216,9 @@ class Params:
         if self.iac_progress not in ("cumulative", "windowed"):
             raise ValueError(f"Params.iac_progress must be 'cumulative' or 'windowed', "
                              f"got {self.iac_progress!r}")
+        if self.iac_records not in ("all", "practice"):
+            raise ValueError(f"Params.iac_records must be 'all' or 'practice', "
+                             f"got {self.iac_records!r}")
         if self.k_fixed is not None and self.k_fixed < 1:
             raise ValueError(f"Params.k_fixed must be >= 1 or None, got {self.k_fixed!r}")
         if self.derivative_zero_band < 0 or self.motor_zero_band < 0:

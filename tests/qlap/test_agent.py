@@ -245,6 +245,27 @@ def test_evaluation_changes_nothing_the_agent_learned(trained, tmp_path):
     assert again["rewards"] == res["rewards"]
 
 
+def test_evaluation_can_pursue_another_goal_than_the_tasks(trained, tmp_path):
+    """``qlap eval --goal``: the agent pursues the given goal, the task still judges. Pursuing
+    ẋ = [−] in x_up trials (goal ẋ = [+]) is slow where pursuing the task's own goal is not."""
+    from qlap_runtime.agent_run import evaluate
+    from tests.qlap.toyworld import ToyTaskWorld
+    from worlds.base import Goal
+
+    evaluation_copy(trained, tmp_path)
+    own = evaluate(tmp_path / "ck", ToyTaskWorld(), "x_up", 10, 3)
+    same = evaluate(tmp_path / "ck", ToyTaskWorld(), "x_up", 10, 3, pursue=Goal("x.dot", "+"))
+    down = evaluate(tmp_path / "ck", ToyTaskWorld(), "x_up", 10, 3, pursue=Goal("x.dot", "-"))
+    assert own["successes"] >= 8 and "pursued" not in own
+    assert same["rewards"] == own["rewards"] and same["pursued"] == "x.dot=+"
+    # Pushing x down first: the trials end only once x rises after all (1.5 → 9.5 steps).
+    assert own["mean_steps"] < 2 and down["mean_steps"] > 5 and down["pursued"] == "x.dot=-"
+    with pytest.raises(KeyError, match="unknown variable 'y.dot'"):
+        evaluate(tmp_path / "ck", ToyTaskWorld(), "x_up", 2, 3, pursue=Goal("y.dot", "+"))
+    with pytest.raises(ValueError, match="qlap policy"):
+        evaluate(None, ToyTaskWorld(), "x_up", 2, 3, policy="random", pursue=Goal("x.dot", "+"))
+
+
 def test_evaluation_leaves_the_perception_history_alone(trained, tmp_path):
     from qlap_runtime.agent_run import goal_policy
     from worlds.evaluate import run_trials

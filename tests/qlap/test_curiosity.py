@@ -86,6 +86,32 @@ def test_windowed_iac_compares_success_rates_of_the_two_windows() -> None:
         P.replace(iac_progress="outcomes")
 
 
+def test_iac_can_record_practice_calls_only() -> None:
+    """``iac_records="practice"`` (docs/decisions.md 79): terminations of the action as a plan's
+    sub-action count in rel(a) but not in eq. 6.1's history, so the action keeps eq. 6.2's
+    weight until it has been practised 2θ = 50 times."""
+    pp = P.replace(iac_records="practice")
+    a = ActionStats()
+    for i in range(60):                       # 60 sub-action calls, one success in three
+        a.record(i % 3 == 0, None, pp, practised=False)
+    assert (a.calls, a.successes, len(a.history)) == (60, 20, 0)
+    assert a.rel(P.prior) == pytest.approx(21 / 62)
+    # Still eq. 6.2: H(21/62)·rel(o, s), not the floor of eq. 6.1.
+    assert action_weight(a, 0.5, pp) == pytest.approx(0.46179, abs=1e-5)   # H = 0.92358 bits
+    for _ in range(50):                       # 50 practised calls, all failures
+        a.record(False, None, pp, practised=True)
+    assert len(a.history) == 50 and a.history[0] == pytest.approx(21 / 63)
+    assert action_weight(a, 0.5, pp) == 0.001
+    # With the default "all", the same 60 sub-action calls make 60 records: eq. 6.1 already
+    # (at its floor: rel(a) fell over the calls).
+    b = ActionStats()
+    for i in range(60):
+        b.record(i % 3 == 0, None, P, practised=False)
+    assert len(b.history) == 60 and action_weight(b, 0.5, P) == 0.001
+    with pytest.raises(ValueError, match="iac_records"):
+        P.replace(iac_records="sub")
+
+
 def test_choose_action_frequencies() -> None:
     rng = np.random.default_rng(3)
     keys = [(0, 0), (4, 2)]
