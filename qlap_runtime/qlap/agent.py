@@ -557,13 +557,15 @@ class Agent:
                        (dbn.antecedent.var, dbn.antecedent.value)))
         return edges
 
-    def _antecedent_achievable(self, dbn: DBN) -> bool:
+    def _antecedent_achievable(self, dbn: DBN, targeted: bool = False) -> bool:
         """§6.2.2 criterion 1 (NRP): "there is a sufficiently reliable plan to achieve the
         antecedent event", i.e. a plan of a(X, x) whose second-order model had brel(o) > θ_SR
         (§5.4.1, :meth:`Plan.refresh_reliable`); for ↑X → x (↓X → x) the plan reaching x from
         below (above). A motor antecedent is always achievable (§5.5). The text states the rule
         for change DBNs; a magnitude DBN ⟨Ẏ → [±] ⇒ Y → y⟩ needs a plan of a(Ẏ, [±]) (the
-        applicability of magnitude actions, §6.1.1), reliable or not (docs/decisions.md)."""
+        applicability of magnitude actions, §6.1.1), reliable or not (docs/decisions.md).
+        With ``Params.nrp_targeted`` a DBN whose consequent is ``targeted`` (§6.3) also takes
+        a plan whose brel(o) is above θ_SR = 0.25 now (docs/decisions.md 75, 89)."""
         if self.params.ablations.nrp:
             return True
         a = dbn.antecedent
@@ -576,6 +578,9 @@ class Agent:
             if on_magnitude and plan.goal.direction != a.direction:
                 continue
             if dbn.kind != CHANGE or plan.ever_reliable:
+                return True
+            if targeted and self.params.nrp_targeted and self._reliable_cells(
+                    plan.cpt_s, plan.cpt_f, self.params.theta_sr_targeted):
                 return True
         return False
 
@@ -592,7 +597,7 @@ class Agent:
         index = self.learner.perception.events
         dbn_of_plan = {plan.dbn_id for plan in self.plans.values()}
         with_plans = {plan.action for plan in self.plans.values()}
-        ranked: list[tuple[tuple[bool, float, float, int], DBN]] = []
+        ranked: list[tuple[tuple[bool, float, float, int], DBN, bool]] = []
         for dbn_id in sorted(self.learner.dbns):
             dbn = self.learner.dbns[dbn_id]
             if dbn_id in dbn_of_plan:
@@ -601,6 +606,7 @@ class Agent:
             if key not in self.actions or (self.actions[key].sufficiently_reliable(p)
                                            and key in with_plans):
                 continue                                              # §6.2.1 item 2
+            tgt = False
             if dbn.kind == CHANGE:
                 cons_id = index.cons_of_event[index.encode(dbn.consequent)]
                 tgt = bool(targeted_mask[cons_id]) if cons_id >= 0 else False
@@ -610,14 +616,14 @@ class Agent:
             overall = success_probability(float(dbn.cpt_s.sum()), float(dbn.cpt_f.sum()),
                                           p.prior)
             ranked.append(((-overall, st.brel is None, -(st.brel or 0.0), st.entropy, dbn_id),
-                           dbn))
+                           dbn, tgt))
         ranked.sort(key=lambda r: r[0])
         adj: dict[ActionKey, list[ActionKey]] = {}              # the edges of _plan_edges
         for a, b in self._plan_edges():
             adj.setdefault(a, []).append(b)
-        for _, dbn in ranked:
+        for _, dbn, tgt in ranked:
             key = (dbn.consequent.var, dbn.consequent.value)
-            if not self._antecedent_achievable(dbn):
+            if not self._antecedent_achievable(dbn, tgt):
                 continue
             edge = (key, (dbn.antecedent.var, dbn.antecedent.value))
             if closes_cycle(adj, edge):
@@ -642,11 +648,16 @@ class Agent:
                 adj.setdefault(edge[0], []).append(edge[1])
 
     def _reliable_at(self, dbn: DBN, theta: float) -> bool:
-        st = model_stats(dbn.cpt_s, dbn.cpt_f, len(dbn.context), self.params)
+        return self._reliable_cells(dbn.cpt_s, dbn.cpt_f, theta, len(dbn.context))
+
+    def _reliable_cells(self, cpt_s: np.ndarray, cpt_f: np.ndarray, theta: float,
+                        n_context: int = 0) -> bool:
+        """App. B's test at ``theta`` in the best cell of a CPT (brel > theta)."""
+        st = model_stats(cpt_s, cpt_f, n_context, self.params)
         if st.brel is None:
             return False
-        i = int(np.argmax((dbn.cpt_s + 1) / (dbn.cpt_s + dbn.cpt_f + 2) * (dbn.cpt_s >= 5)))
-        return prob_above(theta, float(dbn.cpt_s[i]), float(dbn.cpt_f[i]), self.params.prior,
+        i = int(np.argmax((cpt_s + 1) / (cpt_s + cpt_f + 2) * (cpt_s >= 5)))
+        return prob_above(theta, float(cpt_s[i]), float(cpt_f[i]), self.params.prior,
                           self.params.beta_confidence)
 
     def _add_plan(self, dbn: DBN, created: int, plan_id: int | None = None,

@@ -112,6 +112,10 @@ class Params:
     """θ_pen for contingencies whose consequent is targeted (§6.3)."""
     theta_sr_targeted: float = 0.25
     """θ_SR for converting a DBN on a targeted event to a plan (§6.3)."""
+    nrp_targeted: bool = False
+    """§6.2.2 criterion 1 for a DBN whose consequent is targeted: a plan of its antecedent
+    with brel(o) > theta_sr_targeted now counts as sufficiently reliable (docs/decisions.md
+    75, 89); off: θ_SR = 0.75 as for any DBN."""
 
     # --- planning (§5.2–5.4) -----------------------------------------------------------------
     step_reward: float = -2.0

@@ -523,6 +523,26 @@ def test_nrp_keeps_theta_sr_for_a_targeted_consequent(targeted):
     assert plan_dbns(agent) == [0, 1, 2, 3, 4]
 
 
+@pytest.mark.parametrize("targeted", [False, True])
+def test_nrp_targeted_takes_a_plan_above_a_quarter_for_a_targeted_consequent(targeted):
+    """``Params.nrp_targeted`` (decision 89, the reading decision 75 rejected): with the same
+    plan of the antecedent as above (6 successes and 10 failures: Pr(p > 0.25) = 0.893 ≥ 0.8),
+    the DBN of a targeted consequent becomes a plan; one not targeted still waits."""
+    from qlap_runtime.qlap.params import Ablations
+
+    abl = Ablations(all_targeted=True) if targeted else Ablations(no_targeted=True)
+    agent = nrp_agent(PARAMS.replace(ablations=abl, nrp_targeted=True))
+    agent._convert_dbns_to_plans(100)
+    reach = next(pl for pl in agent.plans.values() if pl.dbn_id == 2)
+    reach.cpt_s, reach.cpt_f = np.array([4.0]), np.array([8.0])     # < 5 successes: no brel
+    agent._convert_dbns_to_plans(102)
+    assert plan_dbns(agent) == [0, 1, 2, 3]
+    reach.cpt_s, reach.cpt_f = np.array([6.0]), np.array([10.0])
+    agent._convert_dbns_to_plans(104)
+    assert not reach.ever_reliable
+    assert plan_dbns(agent) == ([0, 1, 2, 3, 4] if targeted else [0, 1, 2, 3])
+
+
 # --- the call list across a landmark batch (§5.2.2, §5.4.2) -------------------------------------
 
 
