@@ -115,7 +115,7 @@ class Params:
     nrp_targeted: bool = False
     """§6.2.2 criterion 1 for a DBN whose consequent is targeted: a plan of its antecedent
     with brel(o) > theta_sr_targeted now counts as sufficiently reliable (docs/decisions.md
-    75, 89); off: θ_SR = 0.75 as for any DBN."""
+    75, 89; measured and rejected); off: θ_SR = 0.75 as for any DBN."""
 
     # --- planning (§5.2–5.4) -----------------------------------------------------------------
     step_reward: float = -2.0
