@@ -298,6 +298,9 @@ def main(argv: list[str] | None = None) -> int:
             return run_bus_command(args)
         if args.command == "worlds":
             return _cmd_worlds(args)
+    except BrokenPipeError:               # `qlap … | head`: the reader left; nothing to say
+        _silence_stdout()
+        return 141
     except KeyboardInterrupt:
         where = getattr(args, "run_dir", None)
         print("interrupted" + (f"; what was written so far is in {where}" if where else ""),
@@ -310,6 +313,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"qlap {args.command}: {one_line(leaf)}", file=sys.stderr)
         return leaf.code if isinstance(leaf, CliError) else 1
     return 2
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's flush at exit does not fail again on
+    the closed pipe (the idiom of the Python docs, "Note on SIGPIPE")."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):   # no file descriptor (a captured stream)
+        pass
 
 
 def _check_args(args: argparse.Namespace) -> None:

@@ -92,3 +92,20 @@ def test_help_lists_every_command():
     r = qlap("--help")
     for cmd in ("run", "show", "eval", "snapshot", "worlds", "router", "record", "echo"):
         assert cmd in r.stdout
+
+
+def test_a_closed_pipe_ends_the_command_quietly(monkeypatch, capsys):
+    """``qlap worlds | head -1``: once the reader has gone, writing raises BrokenPipeError;
+    the command ends with 141 (128 + SIGPIPE, as a shell reports it) and no error line."""
+    from qlap_runtime import cli
+
+    class ClosedPipe:
+        def write(self, text: str) -> int:
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self) -> None:
+            pass
+
+    monkeypatch.setattr("sys.stdout", ClosedPipe())
+    assert cli.main(["worlds"]) == 141
+    assert capsys.readouterr().err == ""
