@@ -92,12 +92,15 @@ class Output:
 
     ``logged=False``: no replay log (every consumer takes the messages in memory, the hosted
     step chain's ``sense`` and ``motor``); a message then is encoded and put only while
-    somebody listens (:attr:`wanted`, docs/decisions.md 84)."""
+    somebody listens (:attr:`wanted`, docs/decisions.md 84). ``bundled``: other sessions get
+    the messages in bundles (:meth:`~qlap_runtime.bus.bridge.Publisher.hold`), each sent by
+    :meth:`flush` (docs/decisions.md 91)."""
 
     def __init__(self, session: Any, ctx: RunContext, topic: str, actor: str = "",
-                 logged: bool = True) -> None:
+                 logged: bool = True, bundled: bool = False) -> None:
         self.pub = Publisher(session, ctx.run_id, topic, faults=Faults.of(ctx.faults),
                              tag=actor)
+        self._send = self.pub.hold if bundled else self.pub.put
         self._log = ReplayLog(session, ctx.run_id, topic, ctx.replay_keep) if logged else None
         self.key = keys.key(ctx.run_id, topic)
         self.unsent = 0
@@ -120,11 +123,20 @@ class Output:
         loses it for good, :class:`~qlap_runtime.bus.faults.Faults` ``lost``)."""
         if self._log is None:
             if self.pub.wanted:
-                self.pub.put(msg)
+                self._send(msg)
             else:
                 self.unsent += 1
-        elif self.pub.put(msg) or self.pub.faults is None or not self.pub.faults.lost:
+        elif self._send(msg) or self.pub.faults is None or not self.pub.faults.lost:
             self._log.append(step, msg, self.pub.payload)
+
+    @property
+    def held(self) -> int:
+        """Messages of a ``bundled`` output not yet sent to other sessions."""
+        return self.pub.held
+
+    def flush(self) -> None:
+        """Send what a ``bundled`` output holds (one Zenoh sample)."""
+        self.pub.flush()
 
     def skip(self) -> None:
         """A message not built: nobody wanted it (:attr:`wanted`)."""
@@ -193,9 +205,10 @@ class Actor:
         self._stack.callback(self._deltas.close)
         return self._deltas
 
-    def output(self, topic: str, *, logged: bool = True) -> Output:
-        """A published topic with its replay log (``logged``, :class:`Output`)."""
-        out = Output(self.session, self.ctx, topic, self.name, logged)
+    def output(self, topic: str, *, logged: bool = True, bundled: bool = False) -> Output:
+        """A published topic with its replay log (``logged``) and bundles (``bundled``,
+        :class:`Output`)."""
+        out = Output(self.session, self.ctx, topic, self.name, logged, bundled)
         self._stack.callback(out.close)
         self._outputs.append(out)
         return out

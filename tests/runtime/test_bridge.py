@@ -275,3 +275,40 @@ async def test_a_hosted_input_gets_foreign_messages_only_and_an_unheard_output_s
         finally:
             out.close()
             logged.close()
+
+
+async def test_held_messages_reach_this_session_at_once_and_others_in_one_bundle(
+        two_clients, run_id):
+    """``hold`` hands a lockstep message to this session's subscribers within the call and
+    keeps it for other sessions until ``flush``, which puts all it held as one sample that
+    the other session's subscriber hands out message by message, in order (decision 91)."""
+    here, there = two_clients
+    key = keys.key(run_id, "qstate")
+    with TrioSubscriber(here, key) as local, TrioSubscriber(there, key) as remote, \
+            Publisher(here, run_id, "qstate") as pub:
+        with trio.fail_after(10):
+            while not remote.received:          # the other session's subscription is routed
+                pub.put(QState(-1, {}, (), {}))
+                await trio.sleep(0.05)
+        await trio.sleep(0.2)
+        local.receive_nowait(), remote.receive_nowait()
+        for t in range(5):
+            assert pub.hold(QState(t, {"x": t}, (), {"x": 0.5 * t}))
+        assert pub.held == 5
+        assert [r.msg.step for r in local.receive_nowait()] == [0, 1, 2, 3, 4]
+        await trio.sleep(0.3)
+        assert remote.receive_nowait() == []    # held: nothing went out yet
+        pub.flush()
+        assert pub.held == 0 and pub.bundles == 1
+        got: list[QState] = []
+        with trio.fail_after(10):
+            while len(got) < 5:
+                got += [r.msg for r in await remote.receive_batch()]
+        assert [m.step for m in got] == [0, 1, 2, 3, 4]
+        assert got[3].values == {"x": 3} and got[3].x == {"x": 1.5}
+        pub.hold(QState(5, {}, (), {}))         # one held message goes as itself
+        pub.flush()
+        with trio.fail_after(10):
+            last = await remote.receive_batch()
+        assert [r.msg.step for r in last] == [5] and pub.bundles == 1
+        assert remote.counter.total == 0
