@@ -29,11 +29,12 @@ from .convert import QStateCodec, apply_landmark_ops, rejection_as_sent
 
 NAME = "perception"
 CONSUMERS = ("contingency", "landmarks", "executor")
-BUNDLE_STEPS = 64
+BUNDLE_BYTES = 32 * 1024
 BUNDLE_S = 0.02
 """On the hosted chain in lockstep, ``qstate`` goes to other sessions (the learners of the
-processes placement) in bundles of at most this many steps, or this many seconds, sent at
-every batch step at the latest (docs/decisions.md 91)."""
+processes placement) in bundles of about this many bytes (32 steps of core: the cheapest
+size per message, measured; over Zenoh's 64 KiB batch a bundle is fragmented) or this many
+seconds, sent at every batch step at the latest (docs/decisions.md 91)."""
 
 
 class PerceptionActor(ActorBase):
@@ -104,7 +105,7 @@ class PerceptionActor(ActorBase):
         held = self.out.held
         if held == 1:
             self.held_since = time.perf_counter()
-        if held and (held >= BUNDLE_STEPS or batch_kinds(self.ctx.params, t)
+        if held and (self.out.held_bytes >= BUNDLE_BYTES or batch_kinds(self.ctx.params, t)
                      or time.perf_counter() - self.held_since >= BUNDLE_S):
             self.out.flush()
 

@@ -475,6 +475,8 @@ class Publisher:
         """Injected drops and delays (tests and the chaos harness only; :mod:`.faults`)."""
         self._held: list[bytes] = []
         """Payloads :meth:`hold` kept for other sessions until :meth:`flush`."""
+        self.held_bytes = 0
+        """Their size (a bundle over Zenoh's 64 KiB batch is fragmented, which costs)."""
         self.bundles = 0
         """Zenoh puts of several held messages (:meth:`flush`)."""
 
@@ -510,6 +512,7 @@ class Publisher:
         for sub in self._local_subs():
             sub.deliver(self.key, payload, msg)
         self._held.append(payload)
+        self.held_bytes += len(payload)
         return True
 
     @property
@@ -523,7 +526,7 @@ class Publisher:
         held = self._held
         if not held:
             return
-        self._held = []
+        self._held, self.held_bytes = [], 0
         if not self._remote_now():
             self.skipped += len(held)
         elif len(held) == 1:

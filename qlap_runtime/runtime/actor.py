@@ -134,6 +134,11 @@ class Output:
         """Messages of a ``bundled`` output not yet sent to other sessions."""
         return self.pub.held
 
+    @property
+    def held_bytes(self) -> int:
+        """Their payloads' size."""
+        return self.pub.held_bytes
+
     def flush(self) -> None:
         """Send what a ``bundled`` output holds (one Zenoh sample)."""
         self.pub.flush()

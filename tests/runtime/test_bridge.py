@@ -292,14 +292,15 @@ async def test_held_messages_reach_this_session_at_once_and_others_in_one_bundle
                 await trio.sleep(0.05)
         await trio.sleep(0.2)
         local.receive_nowait(), remote.receive_nowait()
-        for t in range(5):
-            assert pub.hold(QState(t, {"x": t}, (), {"x": 0.5 * t}))
-        assert pub.held == 5
+        msgs = [QState(t, {"x": t}, (), {"x": 0.5 * t}) for t in range(5)]
+        for msg in msgs:
+            assert pub.hold(msg)
+        assert pub.held == 5 and pub.held_bytes == sum(len(encode(m)) for m in msgs)
         assert [r.msg.step for r in local.receive_nowait()] == [0, 1, 2, 3, 4]
         await trio.sleep(0.3)
         assert remote.receive_nowait() == []    # held: nothing went out yet
         pub.flush()
-        assert pub.held == 0 and pub.bundles == 1
+        assert pub.held == 0 and pub.held_bytes == 0 and pub.bundles == 1
         got: list[QState] = []
         with trio.fail_after(10):
             while len(got) < 5:
