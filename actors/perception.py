@@ -11,7 +11,6 @@ learner's own perception, which the executor then learns from without perceiving
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from qlap_runtime.bus import keys
@@ -20,7 +19,6 @@ from qlap_runtime.qlap.perception import InvalidObservation, Percept, Perception
 from qlap_runtime.runtime.actor import Actor, ActorBase
 from qlap_runtime.runtime.batches import hands_over
 from qlap_runtime.runtime.context import RunContext
-from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.snapshot import save_perception
 from qlap_runtime.runtime.start_state import start_perception
 
@@ -29,12 +27,6 @@ from .convert import QStateCodec, apply_landmark_ops, rejection_as_sent
 
 NAME = "perception"
 CONSUMERS = ("contingency", "landmarks", "executor")
-BUNDLE_BYTES = 32 * 1024
-BUNDLE_S = 0.02
-"""On the hosted chain in lockstep, ``qstate`` goes to other sessions (the learners of the
-processes placement) in bundles of about this many bytes (32 steps of core: the cheapest
-size per message, measured; over Zenoh's 64 KiB batch a bundle is fragmented) or this many
-seconds, sent at every batch step at the latest (docs/decisions.md 91)."""
 
 
 class PerceptionActor(ActorBase):
@@ -55,9 +47,10 @@ class PerceptionActor(ActorBase):
         self.deltas = actor.deltas(len(self.per.table))
         # Logged while a consumer may ask for a qstate again: the learners, unless the
         # executor hands them their batches (then nobody but a listener reads it).
+        # On the hosted chain in lockstep other sessions (the learners of the processes
+        # placement) take qstate in bundles (docs/decisions.md 91).
         self.out = actor.output("qstate", logged=chain is None or not hands_over(ctx),
                                 bundled=chain is not None and not ctx.realtime)
-        self.held_since = 0.0
         actor.restore_log(self.out, actor.resume.state.get("qstate", []))
         self.last_observed = int(actor.resume.state.get("last_observed", ctx.start - 1))
 
@@ -86,7 +79,6 @@ class PerceptionActor(ActorBase):
         if p is None or self.out.wanted:
             self.out.put(t, QState(t, {}, (), {}, rejected=rejected) if p is None
                          else self.codec.message(p))
-            self._flush(t)
         else:
             self.out.skip()
         actor.slot.done(t)
@@ -98,16 +90,6 @@ class PerceptionActor(ActorBase):
             actor.snapshot(t, lambda d: save_perception(self.per, d),
                            last_observed=self.last_observed, qstate=self.out.saved(since))
         return True
-
-    def _flush(self, t: int) -> None:
-        """Send the held ``qstate`` bundle when it is full or old, or at a batch step (a batch
-        at t reads every step up to t, and its delta may be waited for from t on)."""
-        held = self.out.held
-        if held == 1:
-            self.held_since = time.perf_counter()
-        if held and (self.out.held_bytes >= BUNDLE_BYTES or batch_kinds(self.ctx.params, t)
-                     or time.perf_counter() - self.held_since >= BUNDLE_S):
-            self.out.flush()
 
     def perceive(self, t: int, msg: Sense) -> tuple[Percept | None, str]:
         """The percept of ``sense(t)``, or why it is rejected (every actor skips t)."""

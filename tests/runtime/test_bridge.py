@@ -313,3 +313,40 @@ async def test_held_messages_reach_this_session_at_once_and_others_in_one_bundle
             last = await remote.receive_batch()
         assert [r.msg.step for r in last] == [5] and pub.bundles == 1
         assert remote.counter.total == 0
+
+
+async def test_a_bundled_output_sends_at_each_batch_step_and_when_full(two_clients, run_id):
+    """A ``bundled`` output (the hosted chain's ``qstate``) holds its messages for other
+    sessions and sends them at every batch step (a batch at t reads the steps up to t) and
+    once they fill ``BUNDLE_BYTES``; the other session gets every message, in order
+    (docs/decisions.md 91)."""
+    from qlap_runtime.qlap import Params
+    from qlap_runtime.runtime.actor import BUNDLE_BYTES, Output
+    from qlap_runtime.runtime.context import RunContext
+
+    here, there = two_clients
+    ctx = RunContext(run_id, "core2d", 100, 0, Params(dbn_period=10, landmark_period=20))
+    key = keys.key(run_id, "qstate")
+    with TrioSubscriber(there, key) as remote:
+        out = Output(here, ctx, "qstate", "perception", logged=False, bundled=True)
+        try:
+            with trio.fail_after(10):
+                while not out.pub.wanted:  # noqa: ASYNC110 - zenoh's routing, polled
+                    await trio.sleep(0.05)
+            for t in range(1, 11):              # 10: a batch step
+                out.put(t, QState(t, {"x": 1}, (), {"x": 0.5}))
+            assert out.held == 0
+            big = {f"v{i}": 0.123456789 * i for i in range(200)}      # ~5 KiB a message
+            assert 4_000 < len(encode(QState(11, {}, (), big))) < BUNDLE_BYTES // 4
+            for sent in range(11, 31):          # ~100 KiB: never more than the bound held
+                out.put(sent, QState(sent, {}, (), big))
+                assert out.pub.held_bytes < BUNDLE_BYTES
+            sent = 31
+            assert out.pub.bundles >= 1          # step 10 at least (time may send more)
+            got: list[int] = []
+            with trio.fail_after(10):
+                while len(got) < sent - 1:
+                    got += [r.msg.step for r in await remote.receive_batch()]
+            assert got == list(range(1, sent))
+        finally:
+            out.close()
