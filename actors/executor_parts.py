@@ -46,9 +46,6 @@ from .convert import LOCAL, batch_context, plan_request
 from .planner import compiled_steps
 from .resume import checkpoint_of
 
-END_MARKER_S = 5.0
-"""How long a hosted executor waits for the world's end marker to reach its controls."""
-
 
 def load_executor_agent(ctx: RunContext, resume: Resume) -> tuple[Agent, Path | None]:
     """The executor's agent (its learner a follower: statistics, no batches) and the resumed
@@ -256,11 +253,3 @@ class Files:
         if not self.closed and self.metrics is not None:
             self.metrics.finish(steps, self.agent)
         self.closed = True
-
-
-async def end_marker(actor: Actor) -> None:
-    """After a ``quit``: wait (a little) until the world's end marker reached the actor's
-    controls (a hosted executor ends right after the world published it)."""
-    with trio.move_on_after(END_MARKER_S):
-        while actor.controls.last_step is None:  # noqa: ASYNC110 - set by a callback
-            await trio.sleep(0.001)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from typing import Any
 
-from qlap_runtime.qlap.checkpoint import save_learner
 from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.qlap.variables import VariableTable
 from qlap_runtime.runtime.actor import Actor, ActorBase
@@ -20,6 +19,7 @@ from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.inbox import DeltaInbox
 from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.rules import qstate_rule
+from qlap_runtime.runtime.snapshot import save_learner_snapshot
 from qlap_runtime.runtime.start_state import start_learner
 
 from .checkpoint_parts import final_dir, part_dir, save_statistics_part
@@ -112,7 +112,8 @@ class LearnerActor(ActorBase):
             return
         if guest is not None:                   # the learner's files are the host's
             guest.batches.out.write_snapshot(t, None, CONSUMERS)
-        self.batches.out.write_snapshot(t, lambda d: save_learner(learner, d), CONSUMERS)
+        self.batches.out.write_snapshot(t, lambda d: save_learner_snapshot(learner, d),
+                                       CONSUMERS)
 
     async def finish(self) -> dict[str, Any]:
         """The final statistics part; stay until the consumers are done (a consumer behind

@@ -47,7 +47,10 @@ class PerceptionActor(ActorBase):
         self.deltas = actor.deltas(len(self.per.table))
         # Logged while a consumer may ask for a qstate again: the learners, unless the
         # executor hands them their batches (then nobody but a listener reads it).
-        self.out = actor.output("qstate", logged=chain is None or not hands_over(ctx))
+        # On the hosted chain in lockstep other sessions (the learners of the processes
+        # placement) take qstate in bundles (docs/decisions.md 91).
+        self.out = actor.output("qstate", logged=chain is None or not hands_over(ctx),
+                                bundled=chain is not None and not ctx.realtime)
         actor.restore_log(self.out, actor.resume.state.get("qstate", []))
         self.last_observed = int(actor.resume.state.get("last_observed", ctx.start - 1))
 
@@ -105,6 +108,7 @@ class PerceptionActor(ActorBase):
 
     async def finish(self) -> dict[str, Any]:
         """After the last step: the qstate log stays open for the learners behind."""
+        self.out.flush()
         self.result = await self.actor.finish(CONSUMERS, rejected_observations=self.rejected_obs)
         return self.result
 

@@ -15,34 +15,28 @@ from typing import Any
 
 import trio
 
-from qlap_runtime.bus.schema import Control
 from qlap_runtime.errors import WorldFailed
 from qlap_runtime.runtime.actor import Actor, ActorBase
 from qlap_runtime.runtime.clock import world_clock
 from qlap_runtime.runtime.context import RunContext
-from qlap_runtime.runtime.outputs import write_failure_summary
 from qlap_runtime.runtime.rules import motor_rule
 
 from .chain import Chain
-from .checkpoint_parts import final_dir, keep_on_stall, part_dir, save_world_part
+from .checkpoint_parts import keep_on_stall, part_dir, save_world_part
 from .convert import SenseCodec, world_view
 from .resume import start_world
+from .world_lifecycle import WorldLifecycle
 
 NAME = "world"
-OTHERS_END_S = 120.0
-"""How long a failed world waits for the other actors to write their outputs."""
 VIEW_S = 0.1
 """The UI's world panel is published at most this often."""
-YIELD_S = 0.001
-"""The hosted step chain lets the run's other tasks (learners, planner, controls, viewers) run
-at least this often (docs/decisions.md 85): a trio checkpoint is a turn of the scheduler with
-an epoll poll, which every step paid."""
 
 
-class WorldActor(ActorBase):
+class WorldActor(WorldLifecycle):
     """The world, its clock and its topics. With ``chain`` it hosts the rest of the step
     chain: ``perception``'s step, then ``executor``'s, right after ``sense(t)``, the values
-    passing in memory (:class:`~actors.chain.Chain`, docs/decisions.md 52, 84)."""
+    passing in memory (:class:`~actors.chain.Chain`, docs/decisions.md 52, 84). Its loop,
+    start and end: :class:`~actors.world_lifecycle.WorldLifecycle`."""
 
     def __init__(self, session: Any, ctx: RunContext, world: Any,
                  perception: ActorBase | None = None, executor: Any = None,
@@ -60,7 +54,7 @@ class WorldActor(ActorBase):
         self.clock = world_clock(ctx.realtime, ctx.hz, actor.controls, actor.counter, actor.slot)
         self.stats: dict[str, Any] = {"steps": 0}
         self.failure: WorldFailed | None = None
-        self.last_view = self.last_yield = 0.0
+        self.last_view = 0.0
 
     async def step(self, t: int) -> bool:
         """``sense(t)``, the hosted steps, ``motor(t)``, the physics; False: the run ends."""
@@ -72,13 +66,7 @@ class WorldActor(ActorBase):
         if (chain := self.chain) is None:
             motor = await self.clock.motor(self.motors, t)
         else:
-            chain.sense = sense
-            await self.perception.step(t)       # type: ignore[union-attr]
-            await self.executor.step(t)
-            if (now := time.perf_counter()) - self.last_yield >= YIELD_S:
-                self.last_yield = now
-                await trio.lowlevel.checkpoint()    # learners, controls, viewers
-            motor, chain.motor = chain.motor, None
+            motor = await chain.step(t, sense, self.perception, self.executor)
             self.motors.discard(t)              # the rules on anything else that came
         if motor is not None:
             self.applied = dict(motor.values)
@@ -97,40 +85,6 @@ class WorldActor(ActorBase):
         self.actor.slot.done(t)
         save_world_part(part_dir(self.ctx, t), self.world)    # the executor's checkpoint's
         return True
-
-    async def run(self, ready: trio.Event | None = None) -> dict[str, Any]:  # type: ignore[override]
-        """The loop; then the end marker (after a quit) and the hosted actors' ends."""
-        ctx, clock, stats = self.ctx, self.clock, self.stats
-        await self.actor.start()
-        for hosted in (self.perception, self.executor):
-            if hosted is not None:
-                await hosted.start()            # alive: the launcher waits for its token
-        if ready is not None:
-            await ready.wait()
-        clock.start(ctx.start)
-        for t in range(ctx.start, ctx.end):
-            if not await self.step(t):
-                break
-        last = ctx.start - 1 + stats["steps"]   # the last step sensed and its motor applied
-        stats.update(clock.stop())
-        if self.senses.rejected:
-            stats["rejected_senses"] = self.senses.rejected
-        self.actor.slot.finished()
-        if self.failure is None:
-            save_world_part(final_dir(ctx), self.world)
-        if clock.state.quit:                    # every other actor ends after step `last`
-            self.end_marker.put(Control("quit", {"last_step": last}))
-            stats["quit_at_step"] = last
-        if self.executor is not None:
-            await self.executor.finish(last if clock.state.quit else None)
-        if self.perception is not None:
-            await self.perception.finish()
-        self.result = self.actor.result(**stats, **clock.stats())
-        if self.failure is not None:            # once the others wrote their outputs
-            await self.actor.others_ended(OTHERS_END_S)
-            write_failure_summary(ctx, self.result)
-            raise self.failure
-        return self.result
 
 
 async def run(session: Any, ctx: RunContext, ready: trio.Event | None = None,

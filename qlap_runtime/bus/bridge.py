@@ -57,6 +57,11 @@ QUIET_S = 0.05
 before asking again (:meth:`Publisher.wanted`; zenoh's matching listener reports a new
 subscriber in any case; docs/decisions.md 84)."""
 
+BUNDLE = b"qlap-bundle"
+"""The attachment of a Zenoh sample that carries several messages of its key, their payloads
+joined by newlines (compact JSON has none): :meth:`Publisher.hold` and :meth:`Publisher.flush`
+send them, :class:`TrioSubscriber` hands them out one by one (docs/decisions.md 91)."""
+
 T = TypeVar("T")
 _DONE: Any = object()
 
@@ -97,6 +102,21 @@ class TrioInbox(Generic[T]):
             was_empty = not self._items
             self._items.append(item)
             self.pushed += 1
+            event = self._event
+        if was_empty:
+            if threading.get_ident() == self._thread:
+                self._set_here(event)
+            else:
+                self._wake(event)
+
+    def push_many(self, items: list[T]) -> None:
+        """:meth:`push` each of ``items``, with at most one wake-up."""
+        if not items:
+            return
+        with self._lock:
+            was_empty = not self._items
+            self._items.extend(items)
+            self.pushed += len(items)
             event = self._event
         if was_empty:
             if threading.get_ident() == self._thread:
@@ -250,8 +270,15 @@ class TrioSubscriber:
         # Runs on a Zenoh thread: no actor state here.
         try:
             att = sample.attachment
-            if att is not None and self._routes.delivered(att.to_bytes(), self._since):
-                return                       # a Publisher of this session handed it over
+            if att is not None:
+                tag = att.to_bytes()
+                if tag == BUNDLE:            # several messages (Publisher.flush)
+                    key, now = str(sample.key_expr), time.time_ns()
+                    self._inbox.push_many([(key, part, now, None)
+                                           for part in sample.payload.to_bytes().split(b"\n")])
+                    return
+                if self._routes.delivered(tag, self._since):
+                    return                   # a Publisher of this session handed it over
             self._inbox.push((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns(),
                               None))
         except Exception:
@@ -446,6 +473,12 @@ class Publisher:
         """The encoding of the last message :meth:`put` (a replay log keeps it)."""
         self.faults = faults.injector(topic, tag) if faults is not None else None
         """Injected drops and delays (tests and the chaos harness only; :mod:`.faults`)."""
+        self._held: list[bytes] = []
+        """Payloads :meth:`hold` kept for other sessions until :meth:`flush`."""
+        self.held_bytes = 0
+        """Their size (a bundle over Zenoh's 64 KiB batch is fragmented, which costs)."""
+        self.bundles = 0
+        """Zenoh puts of several held messages (:meth:`flush`)."""
 
     def put(self, msg: Message) -> bool:
         """Encode and publish ``msg``; a message of the wrong type or with a NaN raises
@@ -460,6 +493,47 @@ class Publisher:
             self._send(payload, msg)
             return True
         return self.faults.put(partial(self._send, msg=msg), payload)   # lost or late
+
+    def hold(self, msg: Message) -> bool:
+        """:meth:`put` for a reader in another session that may take ``msg`` a little later:
+        this session's subscribers get it now, other sessions with the next :meth:`flush`,
+        several messages in one Zenoh sample (:data:`BUNDLE`): a put to the router is a
+        syscall and a wake-up of the router and of the reader, which a step chain paid for
+        every ``qstate`` (docs/decisions.md 91). The writer flushes before anything could
+        wait for what it holds. With injected faults, or for a topic that is not a lockstep
+        topic, it is :meth:`put`. Same answer as :meth:`put`."""
+        if self.faults is not None or not self.remote_only:
+            return self.put(msg)
+        if type(msg) is not self.msg_type:
+            raise TypeError(f"{self.key} carries {self.msg_type.__name__}, "
+                            f"not {type(msg).__name__}")
+        self.sent += 1
+        self.payload = payload = encode(msg)
+        for sub in self._local_subs():
+            sub.deliver(self.key, payload, msg)
+        self._held.append(payload)
+        self.held_bytes += len(payload)
+        return True
+
+    @property
+    def held(self) -> int:
+        """Messages :meth:`hold` kept for the next :meth:`flush`."""
+        return len(self._held)
+
+    def flush(self) -> None:
+        """Put what :meth:`hold` kept, as one Zenoh sample, while another session listens
+        (else they count as :attr:`skipped`, as :meth:`put` would have)."""
+        held = self._held
+        if not held:
+            return
+        self._held, self.held_bytes = [], 0
+        if not self._remote_now():
+            self.skipped += len(held)
+        elif len(held) == 1:
+            self._pub.put(held[0])
+        else:
+            self._pub.put(b"\n".join(held), attachment=BUNDLE)
+            self.bundles += 1
 
     @property
     def wanted(self) -> bool:
@@ -541,6 +615,7 @@ class Publisher:
         if self.faults is not None:
             self.faults.close()
         try:
+            self.flush()
             if self._matching is not None:
                 self._matching.undeclare()
             self._pub.undeclare()

@@ -46,6 +46,7 @@ from . import snapshot as snap
 from .context import RunContext
 from .controls import Controls
 from .inbox import DeltaInbox, RunEnded, StepInbox
+from .lockstep import batch_kinds
 from .rules import Rule
 from .watchdog import Slot, slot_of
 
@@ -58,6 +59,13 @@ LINGER_POLL_S = 0.05
 LAZY_S = 0.005
 """How long an actor off the step chain lets the chain run when it has caught up
 (:meth:`Actor.receive` ``lazy``), so that one wake-up takes several steps."""
+BUNDLE_BYTES = 32 * 1024
+BUNDLE_S = 0.02
+"""A ``bundled`` output (:class:`Output`) sends what it holds once it holds this many bytes
+(32 steps of core's ``qstate``: the cheapest size per message, measured; over Zenoh's 64 KiB
+batch a sample is fragmented), once its oldest message is this old, and at every batch step
+(a batch at t reads every step up to t, and its delta may be waited for from t on;
+docs/decisions.md 91)."""
 
 
 @dataclass
@@ -92,12 +100,17 @@ class Output:
 
     ``logged=False``: no replay log (every consumer takes the messages in memory, the hosted
     step chain's ``sense`` and ``motor``); a message then is encoded and put only while
-    somebody listens (:attr:`wanted`, docs/decisions.md 84)."""
+    somebody listens (:attr:`wanted`, docs/decisions.md 84). ``bundled``: other sessions get
+    the messages in bundles (:meth:`~qlap_runtime.bus.bridge.Publisher.hold`), each sent when
+    :data:`BUNDLE_BYTES` or :data:`BUNDLE_S` says, at a batch step, or by :meth:`flush`
+    (docs/decisions.md 91)."""
 
     def __init__(self, session: Any, ctx: RunContext, topic: str, actor: str = "",
-                 logged: bool = True) -> None:
+                 logged: bool = True, bundled: bool = False) -> None:
         self.pub = Publisher(session, ctx.run_id, topic, faults=Faults.of(ctx.faults),
                              tag=actor)
+        self._send = self.pub.hold if bundled else self.pub.put
+        self.bundled, self.params, self._held_since = bundled, ctx.params, 0.0
         self._log = ReplayLog(session, ctx.run_id, topic, ctx.replay_keep) if logged else None
         self.key = keys.key(ctx.run_id, topic)
         self.unsent = 0
@@ -120,11 +133,26 @@ class Output:
         loses it for good, :class:`~qlap_runtime.bus.faults.Faults` ``lost``)."""
         if self._log is None:
             if self.pub.wanted:
-                self.pub.put(msg)
+                self._send(msg)
             else:
                 self.unsent += 1
-        elif self.pub.put(msg) or self.pub.faults is None or not self.pub.faults.lost:
+        elif self._send(msg) or self.pub.faults is None or not self.pub.faults.lost:
             self._log.append(step, msg, self.pub.payload)
+        if self.bundled and (held := self.pub.held):
+            if held == 1:
+                self._held_since = time.perf_counter()
+            if self.pub.held_bytes >= BUNDLE_BYTES or batch_kinds(self.params, step) \
+                    or time.perf_counter() - self._held_since >= BUNDLE_S:
+                self.pub.flush()
+
+    @property
+    def held(self) -> int:
+        """Messages of a ``bundled`` output not yet sent to other sessions."""
+        return self.pub.held
+
+    def flush(self) -> None:
+        """Send what a ``bundled`` output holds (one Zenoh sample)."""
+        self.pub.flush()
 
     def skip(self) -> None:
         """A message not built: nobody wanted it (:attr:`wanted`)."""
@@ -193,9 +221,10 @@ class Actor:
         self._stack.callback(self._deltas.close)
         return self._deltas
 
-    def output(self, topic: str, *, logged: bool = True) -> Output:
-        """A published topic with its replay log (``logged``, :class:`Output`)."""
-        out = Output(self.session, self.ctx, topic, self.name, logged)
+    def output(self, topic: str, *, logged: bool = True, bundled: bool = False) -> Output:
+        """A published topic with its replay log (``logged``) and bundles (``bundled``,
+        :class:`Output`)."""
+        out = Output(self.session, self.ctx, topic, self.name, logged, bundled)
         self._stack.callback(out.close)
         self._outputs.append(out)
         return out

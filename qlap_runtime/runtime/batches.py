@@ -106,8 +106,13 @@ class Batches:
         self.contexts = actor.input("batchctx", window=ctx.replay_keep,
                                     rule=batchctx_rule(n_vars), first=actor.resume.step)
         self.out = DeltaOutbox(actor, kind)
-        self.inline = ctx.params.batch_lag == 0 and not ctx.realtime
-        """L = 0 in lockstep: the batch is computed before the step ends (Algorithm 2)."""
+        self.inline = not ctx.realtime and (ctx.params.batch_lag == 0
+                                            or not ctx.together(actor.name, "world"))
+        """The batch is computed in the actor's task, before its step ends: with L = 0 in
+        lockstep (Algorithm 2), and in lockstep whenever the actor does not share the step
+        chain's process (docs/decisions.md 92): a worker thread would only share this
+        process's GIL with the steps after t, which nothing waits for, while the chain waits
+        for the batch's delta at t + L."""
         self.times: list[float] = []
         self.process: BatchProcess | None = None
         """The worker process the batches in the background go to (docs/decisions.md 80;

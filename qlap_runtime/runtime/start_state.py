@@ -10,13 +10,13 @@ from ..qlap.perception import Perception
 from ..qlap.variables import VariableTable
 from .actor import Resume
 from .context import RunContext, world_variables
-from .snapshot import load_perception
+from .snapshot import load_learner_snapshot, load_perception
 
 
 def start_learner(ctx: RunContext, resume: Resume) -> ModelLearner:
     """A batch actor's learner; it computes batches only when its actor says so."""
     if resume.path is not None:
-        learner = load_learner(resume.path)
+        learner = load_learner_snapshot(resume.path)
     elif resume.checkpoint is not None:     # a resumed run: the learner with its statistics
         learner = load_learner(resume.checkpoint)
         learner.follower = False

@@ -82,3 +82,26 @@ def test_the_planner_compiles_on_the_learners_batch_copy(tmp_path, monkeypatch):
     assert summary["actors"]["planner"]["compilations"] == len(range(500, STEPS - 200, 500))
     assert copies == list(range(500, STEPS, 500))        # one copy a batch step
     assert (tmp_path / "knowledge.json").read_text() == expected
+
+
+async def test_the_planner_compiles_in_its_task_beside_the_step_chain_in_lockstep():
+    """Beside the step chain (the embedded placement, the processes placement's default
+    groups) in lockstep the planner compiles in its task (a worker thread would share the
+    chain's GIL); in a process of its own, or under the realtime clock, in a worker thread
+    (docs/decisions.md 93). The knowledge is the sync loop's either way (the test above)."""
+    import zenoh
+
+    from actors.planner import PlannerActor
+    from qlap_runtime.bus import embedded_config
+    from qlap_runtime.placements.groups import ACTORS, LAYOUTS
+
+    def inline(groups: tuple, clock: str = "lockstep") -> bool:
+        ctx = RunContext("t-planner-inline", "core2d", 100, 0, PARAMS, clock=clock,
+                         groups=groups)
+        with PlannerActor(session, ctx) as planner:
+            return planner.inline
+
+    with zenoh.open(embedded_config()) as session:
+        assert inline((ACTORS,)) and inline(LAYOUTS["two"])
+        assert not inline(LAYOUTS["each"]) and not inline(())
+        assert not inline((ACTORS,), clock="realtime")

@@ -4,6 +4,7 @@ watchdog that stops a run making no progress with one line naming who waits for 
 from __future__ import annotations
 
 import os
+import re
 import signal
 import time
 
@@ -74,8 +75,12 @@ def test_a_stopped_actor_is_a_stall_named_in_one_line_in_bounded_time(tmp_path):
     text = str(err.value)
     assert "\n" not in text
     assert text.startswith("run stalled: no progress for 4 s;")
-    # The first batch (500) is due at 700: the executor waits for it there.
-    assert "executor waits for delta/dbn(500) at step 700" in text
+    # The executor waits at t + L (L = 200) for the first batch t the stopped learners had not
+    # published: 500 at 700, or a later one when they got that far before the signal (they
+    # keep up with the chain since docs/decisions.md 90-92).
+    wait = re.search(r"executor waits for delta/dbn\((\d+)\) at step (\d+)", text)
+    assert wait is not None, text
+    assert int(wait[1]) % 500 == 0 and int(wait[2]) == int(wait[1]) + 200, text
     assert took < 4 + 12, took
     print(text, f"(stopped {took:.1f} s after the SIGSTOP)")
 

@@ -32,3 +32,30 @@ def test_a_batch_copy_keeps_its_history_while_the_learner_goes_on():
     assert np.array_equal(batch_q, hq)
     live_x, _ = learner.perception.history()
     assert not np.array_equal(live_x, hx, equal_nan=True)
+
+
+async def test_a_batch_computes_in_the_actors_task_unless_it_shares_the_step_chains_gil():
+    """In lockstep a learning actor in a process of its own (the processes placement's
+    learners, one actor per process, a distributed actor) computes its batches in its task:
+    a worker thread would share its GIL with nothing the run waits for. Beside the step chain
+    (embedded) and under the realtime clock they stay in worker threads; L = 0 is inline
+    everywhere (docs/decisions.md 92)."""
+    import zenoh
+
+    from qlap_runtime.bus import embedded_config
+    from qlap_runtime.placements.groups import ACTORS, LAYOUTS
+    from qlap_runtime.runtime.actor import Actor
+    from qlap_runtime.runtime.batches import Batches
+    from qlap_runtime.runtime.context import RunContext
+
+    def inline(groups: tuple, clock: str = "lockstep", lag: int = 500) -> bool:
+        ctx = RunContext("inline-test", "core2d", 100, 0, Params(batch_lag=lag), clock=clock,
+                         groups=groups)
+        with Actor(session, ctx, "contingency") as actor:
+            return Batches(actor, "dbn", 4).inline
+
+    with zenoh.open(embedded_config()) as session:
+        assert inline(LAYOUTS["two"]) and inline(LAYOUTS["each"]) and inline(())
+        assert not inline((ACTORS,))                                # embedded
+        assert not inline(LAYOUTS["two"], clock="realtime")
+        assert inline((ACTORS,), lag=0)

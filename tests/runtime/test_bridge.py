@@ -275,3 +275,78 @@ async def test_a_hosted_input_gets_foreign_messages_only_and_an_unheard_output_s
         finally:
             out.close()
             logged.close()
+
+
+async def test_held_messages_reach_this_session_at_once_and_others_in_one_bundle(
+        two_clients, run_id):
+    """``hold`` hands a lockstep message to this session's subscribers within the call and
+    keeps it for other sessions until ``flush``, which puts all it held as one sample that
+    the other session's subscriber hands out message by message, in order (decision 91)."""
+    here, there = two_clients
+    key = keys.key(run_id, "qstate")
+    with TrioSubscriber(here, key) as local, TrioSubscriber(there, key) as remote, \
+            Publisher(here, run_id, "qstate") as pub:
+        with trio.fail_after(10):
+            while not remote.received:          # the other session's subscription is routed
+                pub.put(QState(-1, {}, (), {}))
+                await trio.sleep(0.05)
+        await trio.sleep(0.2)
+        local.receive_nowait(), remote.receive_nowait()
+        msgs = [QState(t, {"x": t}, (), {"x": 0.5 * t}) for t in range(5)]
+        for msg in msgs:
+            assert pub.hold(msg)
+        assert pub.held == 5 and pub.held_bytes == sum(len(encode(m)) for m in msgs)
+        assert [r.msg.step for r in local.receive_nowait()] == [0, 1, 2, 3, 4]
+        await trio.sleep(0.3)
+        assert remote.receive_nowait() == []    # held: nothing went out yet
+        pub.flush()
+        assert pub.held == 0 and pub.held_bytes == 0 and pub.bundles == 1
+        got: list[QState] = []
+        with trio.fail_after(10):
+            while len(got) < 5:
+                got += [r.msg for r in await remote.receive_batch()]
+        assert [m.step for m in got] == [0, 1, 2, 3, 4]
+        assert got[3].values == {"x": 3} and got[3].x == {"x": 1.5}
+        pub.hold(QState(5, {}, (), {}))         # one held message goes as itself
+        pub.flush()
+        with trio.fail_after(10):
+            last = await remote.receive_batch()
+        assert [r.msg.step for r in last] == [5] and pub.bundles == 1
+        assert remote.counter.total == 0
+
+
+async def test_a_bundled_output_sends_at_each_batch_step_and_when_full(two_clients, run_id):
+    """A ``bundled`` output (the hosted chain's ``qstate``) holds its messages for other
+    sessions and sends them at every batch step (a batch at t reads the steps up to t) and
+    once they fill ``BUNDLE_BYTES``; the other session gets every message, in order
+    (docs/decisions.md 91)."""
+    from qlap_runtime.qlap import Params
+    from qlap_runtime.runtime.actor import BUNDLE_BYTES, Output
+    from qlap_runtime.runtime.context import RunContext
+
+    here, there = two_clients
+    ctx = RunContext(run_id, "core2d", 100, 0, Params(dbn_period=10, landmark_period=20))
+    key = keys.key(run_id, "qstate")
+    with TrioSubscriber(there, key) as remote:
+        out = Output(here, ctx, "qstate", "perception", logged=False, bundled=True)
+        try:
+            with trio.fail_after(10):
+                while not out.pub.wanted:  # noqa: ASYNC110 - zenoh's routing, polled
+                    await trio.sleep(0.05)
+            for t in range(1, 11):              # 10: a batch step
+                out.put(t, QState(t, {"x": 1}, (), {"x": 0.5}))
+            assert out.held == 0
+            big = {f"v{i}": 0.123456789 * i for i in range(200)}      # ~5 KiB a message
+            assert 4_000 < len(encode(QState(11, {}, (), big))) < BUNDLE_BYTES // 4
+            for sent in range(11, 31):          # ~100 KiB: never more than the bound held
+                out.put(sent, QState(sent, {}, (), big))
+                assert out.pub.held_bytes < BUNDLE_BYTES
+            sent = 31
+            assert out.pub.bundles >= 1          # step 10 at least (time may send more)
+            got: list[int] = []
+            with trio.fail_after(10):
+                while len(got) < sent - 1:
+                    got += [r.msg.step for r in await remote.receive_batch()]
+            assert got == list(range(1, sent))
+        finally:
+            out.close()

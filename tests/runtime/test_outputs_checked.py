@@ -81,9 +81,12 @@ def test_embedded_checks_the_run_directory_before_starting(tiny_fs):
 
 
 def test_a_disk_full_at_the_end_of_a_processes_run_is_one_line_in_bounded_time(tiny_fs):
-    """The executor cannot write knowledge.json, nor the world and contingency actors their
-    parts of the final checkpoint (whichever writes first is named): the run stops (no
-    restart, no hang) with one line; metrics.jsonl, written before, stays."""
+    """The disk fills after step 2,000: the executor cannot write its metrics or
+    knowledge.json, nor the world and contingency actors their parts of the final checkpoint
+    (whichever writes first is named): the run stops (no restart, no hang) with one line;
+    metrics.jsonl, written before, stays. The run is 6,000 steps long so that it cannot end
+    before the filler's poll sees step 2,000 (a 3,000-step run whose learners keep up did,
+    docs/decisions.md 90–92)."""
     out = tiny_fs / "run"
     metrics = out / "metrics.jsonl"
     filled: list[float] = []
@@ -103,7 +106,7 @@ def test_a_disk_full_at_the_end_of_a_processes_run_is_one_line_in_bounded_time(t
     thread.start()
     proc = subprocess.Popen([sys.executable, "-m", "qlap_runtime.cli", "run", "--headless",
                              "--quiet", "--placement", "processes", "--world", "core2d",
-                             "--steps", "3000", "--babble-steps", "1500", "--lag", "200",
+                             "--steps", "6000", "--babble-steps", "1500", "--lag", "200",
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True)
     _, stderr = proc.communicate(timeout=240)
