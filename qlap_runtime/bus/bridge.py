@@ -104,10 +104,7 @@ class TrioInbox(Generic[T]):
             self.pushed += 1
             event = self._event
         if was_empty:
-            if threading.get_ident() == self._thread:
-                self._set_here(event)
-            else:
-                self._wake(event)
+            self._wake_consumer(event)
 
     def push_many(self, items: list[T]) -> None:
         """:meth:`push` each of ``items``, with at most one wake-up."""
@@ -119,10 +116,15 @@ class TrioInbox(Generic[T]):
             self.pushed += len(items)
             event = self._event
         if was_empty:
-            if threading.get_ident() == self._thread:
-                self._set_here(event)
-            else:
-                self._wake(event)
+            self._wake_consumer(event)
+
+    def _wake_consumer(self, event: trio.Event) -> None:
+        """Wake the consumer that waits on ``event``: at once on its own thread, else through
+        trio's wake-up socket."""
+        if threading.get_ident() == self._thread:
+            self._set_here(event)
+        else:
+            self._wake(event)
 
     def _set_here(self, event: trio.Event) -> None:
         """On the consuming trio run's own thread (a put from one of its tasks): set the event
