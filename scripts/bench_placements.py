@@ -50,14 +50,15 @@ def main() -> None:
     only = set(args.only.split(",")) - {""}
     world = worlds.make(args.world)
     params = params_for_world(world, Params(babble_steps=args.babble, batch_lag=args.lag))
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.thread_time()
     agent, _ = run_agent(world, args.steps, args.seed, params=params)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
     world.close()
     reference = knowledge_json(agent)
     print(f"{args.world}, {args.steps} steps, lag {args.lag}, babbling {args.babble}:")
     sync_wall = wall
-    print(f"  {'sync':15s} {args.steps / wall:8,.0f} steps/s  wall {wall:.1f} s")
+    print(f"  {'sync':15s} {args.steps / wall:8,.0f} steps/s  wall {wall:.1f} s  "
+          f"CPU {cpu:.2f} s")
     runs: list[tuple[str, Any]] = [("embedded", run_embedded)] if "embedded" in only else []
     layouts = [g for g in args.groups.split(",") if g and g != "none"] \
         if "processes" in only else []
@@ -72,7 +73,9 @@ def main() -> None:
         loop_wall = args.steps / s["loop_steps_per_s"]
         print(f"  {name:15s} {s['loop_steps_per_s']:8,.0f} steps/s (start-up excluded; "
               f"{s['steps_per_s']:,.0f} with it)  wall / sync {loop_wall / sync_wall:.2f}  "
-              f"waits {s['waits']}  identical knowledge: {same}")
+              f"waits {s['waits']} ({s['actors']['executor'].get('wait_s', 0):.2f} s)  "
+              f"chain CPU {s['actors']['world'].get('loop_cpu_s', 0):.2f} s  "
+              f"identical knowledge: {same}")
     if args.local:
         from tui.driver import LocalDriver
 

@@ -29,6 +29,7 @@ import zenoh
 from ..bus.bridge import AliveWatcher
 from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
+from ..qlap.kernels import warm_kernels
 from ..runtime.outputs import check_out
 from ..runtime.supervisor import Supervisor, group_name
 from .groups import ACTORS, DEFAULT_GROUPS, LEARNERS, Layout, parse_groups
@@ -93,6 +94,10 @@ async def _run_group(names: tuple[str, ...], session: Any, ctx: Any,
         # A process with the world is never restarted: its actors write no snapshots (an
         # executor's took 0.3 s on the chain every snapshot_every steps).
         ctx = ctx.with_(snapshot_dir=None)
+    if set(names) - {"world"}:
+        # Numba's kernels loaded before the world's clock starts, not on the step chain at
+        # their first call (docs/decisions.md 95).
+        warm_kernels()
 
     async def one(unit: str) -> None:
         results.update(await _run_unit(unit, session, ctx, ready))

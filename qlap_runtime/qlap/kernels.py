@@ -63,6 +63,53 @@ def kernels() -> SimpleNamespace | None:
     return _compiled
 
 
+def kernel_signatures() -> dict[str, list[tuple]]:
+    """The argument types each compiled kernel is called with in a run (what the callers
+    pass: C-contiguous arrays, the frozen models' read-only ones), by kernel name; empty
+    without numba. :func:`warm_kernels` loads these."""
+    if kernels() is None:
+        return {}
+    from numba import types as nt
+
+    def arr(dtype: object, ndim: int, readonly: bool = False) -> object:
+        return nt.Array(dtype, ndim, "C", readonly=readonly)
+
+    f8, i8, b1 = nt.float64, nt.int64, nt.boolean
+    f1, f2, i1, i2, bv = arr(f8, 1), arr(f8, 2), arr(i8, 1), arr(i8, 2), arr(b1, 1)
+    return {
+        "vi_sweeps": [(f1, f1, f1, f1, i1, i1, i1, i1, i8, f8, f8, i8)],
+        "dyna": [(f2, i1, f1, f1, f1, f1, i1, i1, f8, f8)],
+        "sarsa": [(f2, f2, i8, i8, f8, f8, b1)],
+        "context_counts": [(i2, i1, i1, i1, i1, i1, i1, i1, i1, i1, i8)],
+        "bisimilar": [(i2, arr(i8, 2, True), arr(i8, 2, True))],
+        "sequence_bounds": [(f2, f2, i2, i8, arr(f8, 2, True))],
+        "quantize_row": [(f1, i1, f2, f2, i1, i1)],
+        "events_of": [(i1, i1, bv, i1, i1)],
+        "pairs_update": [(i8, i8, i8, i1, i1, i1, i1, i2, i1, i1, i1)],
+        "value_iteration": [(arr(f8, 2, True), arr(i8, 2, True), arr(i8, 2, True),
+                             arr(b1, 2, True), arr(b1, 1, True), f8, f8, f8, f8, i8)],
+    }
+
+
+def warm_kernels() -> int:
+    """Load the compiled kernels now, with the machine code of every signature a run calls
+    them with (:func:`kernel_signatures`; from numba's disk cache, compiled if it has none):
+    an actor process calls it at start-up, before the world's clock starts, since the first
+    call of each kernel in a fresh process otherwise pays numba's import and the cache's
+    load on the step chain (455 ms at core's first plan compilation, docs/decisions.md 95).
+    Nothing is run: the results of every later call are those without the warm-up. Returns
+    the number of signatures loaded (0 without numba)."""
+    k = kernels()
+    if k is None:
+        return 0
+    n = 0
+    for name, sigs in kernel_signatures().items():
+        for sig in sigs:
+            getattr(k, name).compile(sig)
+            n += 1
+    return n
+
+
 def vi_sweeps(q_app: np.ndarray, er: np.ndarray, a1: np.ndarray, a2: np.ndarray,
               n1: np.ndarray, n2: np.ndarray, starts: np.ndarray, live: np.ndarray,
               n_states: int, g: float, tol: float, max_sweeps: int) -> np.ndarray:

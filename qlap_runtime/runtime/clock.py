@@ -50,6 +50,7 @@ class LockstepClock:
         """Wall seconds spent waiting for motors."""
         self.pace0: tuple[float, int] = (trio.current_time(), 0)
         self.loop_t0 = time.perf_counter()
+        self.loop_cpu0 = time.thread_time()
 
     def start(self, step: int) -> None:
         """The first step is ``step``, now. What start-up allocated is frozen: never scanned
@@ -60,15 +61,18 @@ class LockstepClock:
         gc.freeze()
         self.rebase(step)
         self.loop_t0 = time.perf_counter()
+        self.loop_cpu0 = time.thread_time()
 
     def stop(self) -> dict[str, Any]:
         """The loop is over: its own time (start-up and pauses excluded: the step chain's rate
-        the benchmarks compare) and the time paused; start-up's objects may be collected
-        again."""
+        the benchmarks compare), the time paused, and the CPU time of this thread over the
+        loop (``loop_cpu_s``: the hosted step chain's own work); start-up's objects may be
+        collected again."""
         gc.unfreeze()
         loop_s = time.perf_counter() - self.loop_t0
         return {"loop_s": round(loop_s - self.paused_s, 3), "paused_s": round(self.paused_s, 3),
-                "wait_s": self.wait_s}
+                "wait_s": self.wait_s,
+                "loop_cpu_s": round(time.thread_time() - self.loop_cpu0, 3)}
 
     def rebase(self, step: int) -> None:
         """The clock restarts at ``step``, now: no catching up."""

@@ -217,3 +217,32 @@ def test_pair_statistics_compiled_are_the_numpy_ones(monkeypatch: pytest.MonkeyP
                                           ps.last_cons, ps.win_t, ps.win_ids)] + [ps.steps]
 
     assert run(True) == run(False)
+
+
+def test_warm_kernels_load_every_signature_a_run_calls() -> None:
+    """decision 95: after :func:`warm_kernels` (in a fresh process, as an actor process
+    calls it) a run of core through babbling, batches and plans calls no kernel with a
+    signature it did not load."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = """
+import worlds
+from qlap_runtime.agent_run import params_for_world, run_agent
+from qlap_runtime.qlap import Params
+from qlap_runtime.qlap.kernels import kernel_signatures, kernels, warm_kernels
+n = warm_kernels()
+warm = {name: set(d.signatures) for name, d in vars(kernels()).items()}
+world = worlds.make("core")
+run_agent(world, 8000, 0, params=params_for_world(world, Params(babble_steps=6000)))
+used = {name: set(d.signatures) for name, d in vars(kernels()).items()}
+assert n == sum(len(s) for s in kernel_signatures().values()), n
+assert used == warm, {k: used[k] - warm[k] for k in used if used[k] != warm[k]}
+print("ok", n)
+"""
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("ok 10")
