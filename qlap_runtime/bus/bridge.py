@@ -22,6 +22,7 @@ session.
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections import deque
@@ -481,6 +482,8 @@ class Publisher:
         """Their size (a bundle over Zenoh's 64 KiB batch is fragmented, which costs)."""
         self.bundles = 0
         """Zenoh puts of several held messages (:meth:`flush`)."""
+        self._sender: Sender | None = None
+        """The thread that puts what ``flush(wait=False)`` hands it, started at the first."""
 
     def put(self, msg: Message) -> bool:
         """Encode and publish ``msg``; a message of the wrong type or with a NaN raises
@@ -522,20 +525,40 @@ class Publisher:
         """Messages :meth:`hold` kept for the next :meth:`flush`."""
         return len(self._held)
 
-    def flush(self) -> None:
+    def flush(self, wait: bool = True) -> None:
         """Put what :meth:`hold` kept, as one Zenoh sample, while another session listens
-        (else they count as :attr:`skipped`, as :meth:`put` would have)."""
+        (else they count as :attr:`skipped`, as :meth:`put` would have). ``wait=False``: the
+        put goes to this publisher's sender thread, after the ones before it, and the writer
+        goes on while Zenoh blocks (congestion control BLOCK towards a reader that is behind;
+        the put releases the GIL; docs/decisions.md 96); ``wait=True`` returns once every
+        sample held or handed to the thread is on Zenoh."""
         held = self._held
-        if not held:
-            return
-        self._held, self.held_bytes = [], 0
-        if not self._remote_now():
-            self.skipped += len(held)
-        elif len(held) == 1:
-            self._pub.put(held[0])
+        if held:
+            self._held, self.held_bytes = [], 0
+            if not self._remote_now():
+                self.skipped += len(held)
+            else:
+                sample = (held[0], None) if len(held) == 1 \
+                    else (b"\n".join(held), BUNDLE)
+                self.bundles += len(held) > 1
+                if not wait:
+                    if self._sender is None:
+                        self._sender = Sender(self._put_sample, self.key)
+                    self._sender.send(sample)
+                    return
+                if self._sender is not None:
+                    self._sender.drain()
+                self._put_sample(sample)
+                return
+        if wait and self._sender is not None:
+            self._sender.drain()
+
+    def _put_sample(self, sample: tuple[bytes, bytes | None]) -> None:
+        payload, attachment = sample
+        if attachment is None:
+            self._pub.put(payload)
         else:
-            self._pub.put(b"\n".join(held), attachment=BUNDLE)
-            self.bundles += 1
+            self._pub.put(payload, attachment=attachment)
 
     @property
     def wanted(self) -> bool:
@@ -574,6 +597,8 @@ class Publisher:
         """Hand ``payload`` (and ``msg``, the message it encodes, if known) to the subscribers
         of this session, then put it on Zenoh for every other subscriber, tagged so that this
         session's own drop their second copy."""
+        if self._sender is not None:
+            self._sender.drain()                # after what the sender thread still holds
         local = self._local_subs()
         tag = self._local[2]
         for sub in local:
@@ -618,6 +643,8 @@ class Publisher:
             self.faults.close()
         try:
             self.flush()
+            if self._sender is not None:
+                self._sender.close()
             if self._matching is not None:
                 self._matching.undeclare()
             self._pub.undeclare()
@@ -629,6 +656,41 @@ class Publisher:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class Sender:
+    """A thread that puts samples on Zenoh in the order given (:meth:`Publisher.flush` with
+    ``wait=False``). A put that fails (the session closing) is logged and dropped, as a lost
+    message; :meth:`drain` waits until every sample given is out."""
+
+    def __init__(self, put: Callable[[Any], None], name: str) -> None:
+        self.put = put
+        self.queue: queue.Queue[Any] = queue.Queue()
+        self.thread = threading.Thread(target=self._run, name=f"sender {name}", daemon=True)
+        self.thread.start()
+
+    def send(self, sample: Any) -> None:
+        self.queue.put(sample)
+
+    def drain(self) -> None:
+        self.queue.join()
+
+    def close(self) -> None:
+        """Every sample out, then the thread ends."""
+        self.queue.put(None)
+        self.thread.join()
+
+    def _run(self) -> None:
+        while True:
+            sample = self.queue.get()
+            try:
+                if sample is None:
+                    return
+                self.put(sample)
+            except zenoh.ZError as exc:
+                log.warning("a held sample was not sent: %s", exc)
+            finally:
+                self.queue.task_done()
 
 
 # --------------------------------------------------------------------------- liveliness

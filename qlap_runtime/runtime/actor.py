@@ -143,7 +143,7 @@ class Output:
                 self._held_since = time.perf_counter()
             if self.pub.held_bytes >= BUNDLE_BYTES or batch_kinds(self.params, step) \
                     or time.perf_counter() - self._held_since >= BUNDLE_S:
-                self.pub.flush()
+                self.pub.flush(wait=False)      # the chain goes on (decision 96)
 
     @property
     def held(self) -> int:

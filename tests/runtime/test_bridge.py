@@ -315,6 +315,38 @@ async def test_held_messages_reach_this_session_at_once_and_others_in_one_bundle
         assert remote.counter.total == 0
 
 
+async def test_a_flush_in_the_background_keeps_the_order_and_a_flush_waits(two_clients,
+                                                                             run_id):
+    """``flush(wait=False)`` hands the bundle to the publisher's sender thread and returns;
+    the samples go out in the order flushed, before a later :meth:`Publisher.put` and before
+    a waiting ``flush()`` returns (docs/decisions.md 96)."""
+    here, there = two_clients
+    key = keys.key(run_id, "qstate")
+    with TrioSubscriber(there, key) as remote, Publisher(here, run_id, "qstate") as pub:
+        with trio.fail_after(10):
+            while not remote.received:          # the other session's subscription is routed
+                pub.put(QState(-1, {}, (), {}))
+                await trio.sleep(0.05)
+        await trio.sleep(0.2)
+        remote.receive_nowait()
+        for t in range(12):
+            pub.hold(QState(t, {"x": t}, (), {}))
+            if t % 3 == 2:
+                pub.flush(wait=False)
+        pub.put(QState(12, {}, (), {}))         # after every bundle handed to the thread
+        pub.hold(QState(13, {}, (), {}))
+        pub.flush(wait=False)
+        pub.flush()                             # returns once the sender thread is idle
+        assert pub.held == 0 and pub.bundles == 4
+        assert pub._sender is not None and pub._sender.queue.unfinished_tasks == 0
+        got: list[int] = []
+        with trio.fail_after(10):
+            while len(got) < 14:
+                got += [r.msg.step for r in await remote.receive_batch()]
+        assert got == list(range(14))
+        assert remote.counter.total == 0
+
+
 async def test_a_bundled_output_sends_at_each_batch_step_and_when_full(two_clients, run_id):
     """A ``bundled`` output (the hosted chain's ``qstate``) holds its messages for other
     sessions and sends them at every batch step (a batch at t reads the steps up to t) and
