@@ -661,7 +661,7 @@ class Publisher:
 class Sender:
     """A thread that puts samples on Zenoh in the order given (:meth:`Publisher.flush` with
     ``wait=False``). A put that fails (the session closing) is logged and dropped, as a lost
-    message; :meth:`drain` waits until every sample given is out."""
+    message, and the thread goes on; :meth:`drain` waits until every sample given is out."""
 
     def __init__(self, put: Callable[[Any], None], name: str) -> None:
         self.put = put
@@ -687,7 +687,7 @@ class Sender:
                 if sample is None:
                     return
                 self.put(sample)
-            except zenoh.ZError as exc:
+            except Exception as exc:            # the thread goes on: drain waits on it
                 log.warning("a held sample was not sent: %s", exc)
             finally:
                 self.queue.task_done()

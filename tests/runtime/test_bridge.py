@@ -382,3 +382,24 @@ async def test_a_bundled_output_sends_at_each_batch_step_and_when_full(two_clien
             assert got == list(range(1, sent))
         finally:
             out.close()
+
+
+def test_a_sender_goes_on_after_a_failed_put_and_drains() -> None:
+    """A put that raises (the session closing) is logged and dropped; the thread goes on with
+    the next samples, in order, and ``drain`` returns (docs/decisions.md 96)."""
+    from qlap_runtime.bus.bridge import Sender
+
+    sent: list[int] = []
+
+    def put(sample: int) -> None:
+        if sample == 2:
+            raise RuntimeError("undeclared publisher")
+        sent.append(sample)
+
+    sender = Sender(put, "test")
+    for i in range(5):
+        sender.send(i)
+    sender.drain()
+    assert sent == [0, 1, 3, 4]
+    sender.close()
+    assert not sender.thread.is_alive()
