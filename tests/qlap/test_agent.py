@@ -498,6 +498,20 @@ def test_nrp_needs_a_sufficiently_reliable_plan_for_the_antecedent():
     assert plan_dbns(agent) == [0, 1, 2, 3, 4, 5]
 
 
+def test_nrp_ablation_converts_every_dbn_without_a_reliable_antecedent_plan():
+    """§7.11.1's NRP condition (decision 97): criterion 1 of §6.2.2 is switched off, so the
+    DBNs whose antecedent has no reliable plan (4 and 5 above) become plans in the first
+    batch."""
+    from qlap_runtime.qlap.params import Ablations
+
+    agent = nrp_agent(PARAMS.replace(ablations=Ablations(nrp=True)))
+    xdot, ydot = agent.table.index("x.dot"), agent.table.index("y.dot")
+    add_dbn(agent, 5, CHANGE, (xdot, 2, 0), (ydot, 0, 0), 30, 3)      # ⟨ẋ→[+] ⇒ ẏ→[−]⟩
+    agent._convert_dbns_to_plans(100)
+    assert plan_dbns(agent) == [0, 1, 2, 3, 4, 5]
+    assert not any(pl.ever_reliable for pl in agent.plans.values())
+
+
 @pytest.mark.parametrize("targeted", [False, True])
 def test_nrp_keeps_theta_sr_for_a_targeted_consequent(targeted):
     """Decision 75: a targeted consequent (§6.3: θ_SR = 0.25 for its own DBN) still needs a plan
