@@ -227,7 +227,9 @@ def plan_slots(plans: Sequence[PlanStats], params: Params,
     Plans with rel(o) < 0.05 are removed first. At most ``max_plans_per_action`` remain; if the
     action is full, the plan with the lowest rel(o) (prior 0) among those eligible
     (:meth:`PlanStats.eligible_for_replacement`: called more than 30 times, or old, and never
-    sufficiently reliable) may be replaced (ties: the lower index). If no plan qualifies,
+    sufficiently reliable) may be replaced (ties: the lower index); with
+    ``Params.plan_replace == "lowest"`` the lowest rel(o) among all plans not sufficiently
+    reliable, and only if it is eligible (docs/decisions.md 98). If no plan qualifies,
     nothing is replaced. A sufficiently reliable ``action`` gets no new plans at all
     (§6.2.1 item 2), though removal still applies.
     """
@@ -238,9 +240,20 @@ def plan_slots(plans: Sequence[PlanStats], params: Params,
     free = max(0, params.max_plans_per_action - len(kept))
     replaceable: int | None = None
     if free == 0:
-        eligible = [i for i in kept if plans[i].eligible_for_replacement(params)]
-        if eligible:
-            replaceable = min(eligible, key=lambda i: (plans[i].replace_reliability(params), i))
+        if params.plan_replace == "lowest":
+            # The worst plan not sufficiently reliable, if it may go (ties: an eligible one,
+            # then the lower index); a better plan never goes while a worse one waits.
+            open_ = [i for i in kept if not plans[i].reliable]
+            if open_:
+                low = min(open_, key=lambda i: (plans[i].replace_reliability(params),
+                                                not plans[i].eligible_for_replacement(params), i))
+                if plans[low].eligible_for_replacement(params):
+                    replaceable = low
+        else:
+            eligible = [i for i in kept if plans[i].eligible_for_replacement(params)]
+            if eligible:
+                replaceable = min(eligible,
+                                  key=lambda i: (plans[i].replace_reliability(params), i))
     return PlanSlots(remove, free, replaceable)
 
 

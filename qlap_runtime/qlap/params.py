@@ -179,6 +179,13 @@ class Params:
     """A plan may be replaced only after 30 calls (§6.2.2)."""
     plan_remove_below: float = 0.05
     """A plan whose rel(o) falls below this is removed (§6.2.2)."""
+    plan_replace: str = "eligible"
+    """Which plan a new one replaces in a full action (§6.2.2: "the plan with the lowest
+    reliability rel(o) that has been called more than 30 times can be replaced"):
+    ``"eligible"``, the lowest rel(o) among the plans called more than 30 times (or old);
+    ``"lowest"``, the lowest rel(o) among all the action's plans not sufficiently reliable,
+    replaced only if it was called more than 30 times (or is old), so a better plan is never
+    replaced while a worse one waits (docs/decisions.md 98)."""
 
     max_plan_entries: int = 300_000
     """Resource limit: a plan's Q-table may hold at most this many (state, action) entries.
@@ -220,6 +227,9 @@ class Params:
         if self.iac_progress not in ("cumulative", "windowed"):
             raise ValueError(f"Params.iac_progress must be 'cumulative' or 'windowed', "
                              f"got {self.iac_progress!r}")
+        if self.plan_replace not in ("eligible", "lowest"):
+            raise ValueError(f"Params.plan_replace must be 'eligible' or 'lowest', "
+                             f"got {self.plan_replace!r}")
         if self.iac_records not in ("all", "practice"):
             raise ValueError(f"Params.iac_records must be 'all' or 'practice', "
                              f"got {self.iac_records!r}")

@@ -166,6 +166,34 @@ def test_plan_slots_replaces_lowest_prior_zero() -> None:
     assert plan_slots([y, x, c], P).replaceable == 1
 
 
+def test_plan_slots_lowest_reading_never_replaces_a_better_plan() -> None:
+    """Decision 98, seed 1 of docs/results.md at step 93,999: a(Ṫ_L, [+]) held plans of 3
+    successes in 22 calls, 0 in 11 and 14 in 31 (rel(o), prior 0: 0.136, 0.0, 0.452). Only the
+    best has been called more than 30 times: the literal reading replaces it; "lowest" finds
+    the worst plan (0 of 11) too young to go and replaces none."""
+    plans = [plan(3, 19, age=78_000), plan(0, 11, age=72_000), plan(14, 17, age=8_000)]
+    assert plan_slots(plans, P).replaceable == 2
+    lowest = P.replace(plan_replace="lowest")
+    slots = plan_slots(plans, lowest)
+    assert slots.replaceable is None and not slots.accepts_new
+    # once the worst has 31 calls (1 success: 1/31 = 0.032) it is the one to go
+    plans[1] = plan(1, 30, age=72_000)
+    assert plan_slots(plans, lowest).replaceable == 1
+    # or once it is dbn_max_age (100,000) steps old, with its 11 calls
+    plans[1] = plan(0, 11, age=100_000)
+    assert plan_slots(plans, lowest).replaceable == 1
+    # a sufficiently reliable plan is never the one (3 of 22 is then the worst, too young)
+    plans[1] = plan(0, 11, reliable=True, age=72_000)
+    assert plan_slots(plans, lowest).replaceable is None
+    # ties at the lowest rel(o) (1 of 10 and 4 of 40: 0.1): the eligible one goes
+    tied = [plan(1, 9), plan(4, 36), plan(14, 17)]
+    assert plan_slots(tied, lowest).replaceable == 1
+    # where both readings agree (test_plan_slots_replaces_lowest_prior_zero)
+    assert plan_slots([plan(10, 21), plan(5, 30), plan(2, 8)], lowest).replaceable == 1
+    with pytest.raises(ValueError, match="plan_replace"):
+        P.replace(plan_replace="best")
+
+
 def test_plan_slots_free_slots_and_removal() -> None:
     slots = plan_slots([plan(0, 30), plan(10, 21), plan(5, 30)], P)
     assert slots.remove == (0,)
