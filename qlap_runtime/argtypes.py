@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 
 def _integer_at_least(text: str, least: int, what: str) -> int:
@@ -23,6 +24,26 @@ def positive_int(text: str) -> int:
 def count(text: str) -> int:
     """An integer ≥ 0, with a one-line error naming the value."""
     return _integer_at_least(text, 0, "a non-negative integer")
+
+
+def _float_in(text: str, what: str, ok) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not (math.isfinite(value) and ok(value)):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (a rate, a duration), with a one-line error naming the value."""
+    return _float_in(text, "a finite number > 0", lambda v: v > 0)
+
+
+def non_negative_float(text: str) -> float:
+    """A finite number ≥ 0, with a one-line error naming the value."""
+    return _float_in(text, "a finite number >= 0", lambda v: v >= 0)
 
 
 def goal_arg(text: str):  # -> worlds.base.Goal

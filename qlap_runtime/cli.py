@@ -6,8 +6,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
-from .argtypes import count, goal_arg, positive_int
+from .argtypes import count, goal_arg, positive_float, positive_int
 from .errors import CliError, expected_error, one_line
 
 DEFAULT_ACTOR_LAG = 500
@@ -40,6 +41,16 @@ def _version() -> str:
         return __version__
 
 
+def endpoint_arg(text: str) -> str:
+    """A Zenoh endpoint ``PROTOCOL/HOST:PORT``, checked before the run starts."""
+    from .bus.config import BusConfigError, validate_endpoint
+
+    try:
+        return validate_endpoint(text, "endpoint")
+    except BusConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("endpoint: ")) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="qlap", formatter_class=HelpFormatter,
@@ -62,7 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "gym:Pendulum-v1) or package.module:Factory (default: core)")
     run.add_argument("--steps", type=positive_int, default=30_000,
                      help="agent steps to run (default: 30000)")
-    run.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    run.add_argument("--seed", type=count, default=None,
+                     help="random seed (default: 0; with --resume, the checkpoint's, which a "
+                          "different --seed cannot change)")
     run.add_argument("--out", type=Path, default=None,
                      help="run directory for checkpoints, metrics.jsonl, knowledge.json, "
                           "summary.json (default: runs/WORLD-YYYYmmdd-HHMMSS-sSEED/)")
@@ -93,9 +106,11 @@ def build_parser() -> argparse.ArgumentParser:
                           "(deterministic); realtime: the world ticks at --hz, deltas apply "
                           "on arrival, late and missed ticks are counted (embedded and "
                           "processes placements)")
-    run.add_argument("--hz", type=float, default=100.0,
-                     help="tick rate of the realtime clock (default 100)")
+    run.add_argument("--hz", type=positive_float, default=None,
+                     help="tick rate of the realtime clock (default 100; with --clock "
+                          "realtime only)")
     run.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                     type=endpoint_arg,
                      help="also listen on ENDPOINT (e.g. tcp/127.0.0.1:7447) so outside "
                           "subscribers (qlap tui/record/echo --connect) can attach "
                           "(embedded placement and the terminal UI); they authenticate with "
@@ -111,8 +126,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--babble-steps", type=int, default=None,
                      help="length of the initial motor-babbling period (default: 20000, §6.1)")
     run.add_argument("--resume", type=Path, default=None,
-                     help="continue from an agent checkpoint directory (any placement's, in "
-                          "any placement; exact, or refused in one line)")
+                     help="continue from an agent checkpoint directory into a new run "
+                          "directory: a lockstep checkpoint of any placement, in any "
+                          "placement, exactly; a realtime one only in sync, inexactly; "
+                          "otherwise refused in one line")
     run.add_argument("--quiet", action="store_true",
                      help="no progress bar (no progress lines)")
 
@@ -135,7 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="world spec (default: the world the checkpoint records, else core)")
     ev.add_argument("--task", required=True, help="task name, e.g. move_block, hit_floor, pickup")
     ev.add_argument("--trials", type=positive_int, default=100, help="trials of the task")
-    ev.add_argument("--seed", type=int, default=0,
+    ev.add_argument("--seed", type=count, default=0,
                     help="seed of the trials' set-ups (the same set-ups for every checkpoint)")
     ev.add_argument("--policy", choices=("qlap", "random"), default="qlap",
                     help="qlap (the checkpoint's agent) or random (the random-motor baseline)")
@@ -165,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="trials per checkpoint (default: 100)")
     curve.add_argument("--jobs", type=positive_int, default=None,
                        help="worker processes (default: os.cpu_count())")
-    curve.add_argument("--seed", type=int, default=0,
+    curve.add_argument("--seed", type=count, default=0,
                        help="seed of the trials, the same set-ups for every checkpoint "
                             "(default: 0)")
     curve.add_argument("--out", type=Path, default=None,
@@ -210,7 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="world spec, e.g. core:secondary:aligned")
     snap.add_argument("--out", required=True, metavar="FILE.png",
                       help="PNG file to write (its directory must exist)")
-    snap.add_argument("--seed", type=int, default=0, help="seed of the world's placement")
+    snap.add_argument("--seed", type=count, default=0, help="seed of the world's placement")
 
     from .experiments.cli import add_experiment_command
 
@@ -235,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     actor.add_argument("--world", default="core",
                        help="world spec (see qlap worlds), the same for every actor")
     actor.add_argument("--steps", type=positive_int, default=30_000, help="agent steps to run")
-    actor.add_argument("--seed", type=int, default=0, help="random seed")
+    actor.add_argument("--seed", type=count, default=0, help="random seed")
     actor.add_argument("--lag", type=count, default=500, help="batch lag L in steps")
     actor.add_argument("--babble-steps", type=count, default=None,
                        help="length of the initial motor-babbling period (default: 20000, "
@@ -452,13 +469,30 @@ def resume_clash(checkpoint: Path, out: Path | None) -> str | None:
     return None
 
 
+RUN_FILES = ("knowledge.json", "summary.json", "metrics.jsonl", "checkpoints", "actors")
+"""What a run writes into its directory (docs/outputs.md): a directory holding any of them
+holds a run."""
+
+
+def run_files_in(out: Path) -> list[str]:
+    """The names of :data:`RUN_FILES` present in ``out`` (none if it does not exist)."""
+    out = Path(out)
+    return [name for name in RUN_FILES if (out / name).exists()] if out.is_dir() else []
+
+
 def _prepare_out(args: argparse.Namespace) -> Path | None:
     """The run directory (``--out`` or the default), created and checked writable with a
     probe file and for room for a checkpoint before the run starts
-    (:func:`~qlap_runtime.runtime.outputs.check_out`); None after a one-line error."""
+    (:func:`~qlap_runtime.runtime.outputs.check_out`), and refused if it already holds a run
+    (its checkpoints and metrics would mix with this one's); None after a one-line error."""
     from .runtime.outputs import OutputError, check_out
 
     out = args.out if args.out is not None else default_run_dir(args.world, args.seed)
+    held = run_files_in(out)
+    if held:
+        print(f"qlap run: --out {out} already holds a run ({', '.join(held)}); a second run "
+              "there would mix the two: give a new directory", file=sys.stderr)
+        return None
     try:
         check_out(out)
     except OutputError as exc:
@@ -484,8 +518,23 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
     from .metrics import PlainProgress
     from .placements.resume import in_flight_problem
     from .qlap import Params
-    from .qlap.checkpoint import CheckpointError, load_agent
+    from .qlap.checkpoint import CheckpointError, checkpoint_seed, load_agent
 
+    if args.resume is not None:
+        seed = checkpoint_seed(args.resume)
+        given = [flag for flag, value in (("--lag", args.lag),
+                                          ("--babble-steps", args.babble_steps))
+                 if value is not None]
+        if args.seed is not None and seed is not None and args.seed != seed:
+            given.insert(0, f"--seed {args.seed} (the checkpoint's is {seed})")
+        if given:
+            print(f"qlap run: {', '.join(given)} cannot change a resumed agent: it goes on with "
+                  "its checkpoint's random state, lag and babbling (drop --resume for a new "
+                  "run)", file=sys.stderr)
+            return 2
+        args.seed = seed if seed is not None else args.seed
+    if args.seed is None:
+        args.seed = 0
     world = _make_world(args.world, "run")
     if world is None:
         return 2
@@ -508,7 +557,21 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
         print(f"qlap run: {exc}", file=sys.stderr)
         world.close()
         return 2
+    if args.hz is not None and args.clock != "realtime":
+        print(f"qlap run: --hz {args.hz:g} goes with --clock realtime", file=sys.stderr)
+        world.close()
+        return 2
+    args.hz = 100.0 if args.hz is None else args.hz
     if tui:
+        ignored = [flag for flag, given in (("--record", args.record is not None),
+                                            ("--clock realtime", args.clock == "realtime"))
+                   if given]
+        if ignored:
+            print(f"qlap run: {' and '.join(ignored)} go with --headless (the terminal UI "
+                  "runs its agent in lockstep, without recording; `qlap record --connect` "
+                  "records a run started with --listen)", file=sys.stderr)
+            world.close()
+            return 2
         world.close()
         return _run_tui(args)
     if args.clock == "realtime" and args.placement == "sync":
@@ -667,9 +730,6 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
               "subscribers connect to the router's endpoint, printed at the start",
               file=sys.stderr)
         return 2
-    if not args.hz > 0:
-        print(f"qlap run: --hz must be positive, got {args.hz}", file=sys.stderr)
-        return 2
     groups = None
     if args.groups is not None:
         from .placements.groups import GroupsError, parse_groups
@@ -813,6 +873,28 @@ def _cmd_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _world_mismatch(checkpoint: Path, world: Any, spec: str) -> str | None:
+    """Why a checkpoint's agent cannot act in ``world`` (its variables are not the world's:
+    it was learned in another world), or None (also when the checkpoint cannot be read:
+    loading it says why)."""
+    from .analysis.runs import recorded_world
+    from .qlap.checkpoint import CheckpointError, resolve_checkpoint
+
+    try:
+        meta = json.loads((resolve_checkpoint(checkpoint) / "learner.json").read_text())
+        names = [v["name"] for v in meta["variables"] if v.get("source", -1) == -1]
+    except (OSError, ValueError, KeyError, TypeError, CheckpointError):
+        return None
+    if names == [v.name for v in world.variables]:
+        return None
+    learned = recorded_world(checkpoint)
+    where = f"world {learned!r}" if learned else "another world"
+    missing = [n for n in names if n not in {v.name for v in world.variables}]
+    return (f"{checkpoint} was learned in {where}, not --world {spec!r}"
+            + (f" (which has no {', '.join(missing[:3])}{', …' if len(missing) > 3 else ''})"
+               if missing else " (its variables differ)"))
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from .agent_run import evaluate
     from .qlap.checkpoint import CheckpointError
@@ -828,6 +910,12 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     world = _make_world(args.world, "eval")
     if world is None:
         return 2
+    if args.policy == "qlap":
+        mismatch = _world_mismatch(args.checkpoint, world, args.world)
+        if mismatch is not None:
+            print(f"qlap eval: {mismatch}", file=sys.stderr)
+            world.close()
+            return 2
     try:
         res = evaluate(args.checkpoint, world, args.task, args.trials, args.seed, args.policy,
                        pursue=args.goal)
@@ -859,14 +947,17 @@ def _cmd_analysis(args: argparse.Namespace) -> int:
     from .analysis import AnalysisError
     from .analysis.curve import main_curve
     from .analysis.report import main_report
+    from .runtime.outputs import OutputError, check_out
 
     try:
+        if args.command == "curve" and args.out is not None:
+            check_out(args.out, min_free=2**20)     # before the evaluations, not after
         if args.command == "curve":
             return main_curve(args.runs, args.task, args.trials, args.jobs, args.seed,
                               args.out, args.world, echo=lambda s: print(s, flush=True),
                               every=args.every)
         print(main_report(args.runs, as_json=args.json))
-    except AnalysisError as exc:
+    except (AnalysisError, OutputError) as exc:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)
         return 2
     return 0

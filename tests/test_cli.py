@@ -77,7 +77,7 @@ def test_show_and_eval_on_a_run(tmp_path):
     assert "pursuing T_L.dot=+" in r.stdout
     for goal, error in (("nope.dot=+", "unknown variable 'nope.dot'"),
                         ("T_L.dot", "expected VAR=VALUE"),
-                        ("T_L.dot=up", "cannot name value 'up'")):
+                        ("T_L.dot=up", "T_L.dot (change) has no value 'up'")):
         r = qlap("eval", "--world", "core2d", "--checkpoint",
                  str(out / "checkpoints" / "final"), "--task", "move_block", "--goal", goal)
         assert r.returncode == 2 and error in r.stderr, r.stderr

@@ -25,6 +25,7 @@ from typing import Any
 import trio
 import zenoh
 
+from ..argtypes import non_negative_float, positive_float
 from .auth import VIEWER
 from .config import BusConfigError, TlsFiles, client_config, config_from_file, router_config
 
@@ -68,9 +69,9 @@ def add_bus_commands(sub: Any) -> None:
     connection_args(rec)
     rec.add_argument("--out", type=Path, required=True, help="output .mcap file")
     rec.add_argument("--run", default=None, help="run id to record (default: every run)")
-    rec.add_argument("--duration", type=float, default=None,
+    rec.add_argument("--duration", type=positive_float, default=None,
                      help="stop after this many seconds (default: until Ctrl-C)")
-    rec.add_argument("--scene-hz", type=float, default=30.0, metavar="HZ",
+    rec.add_argument("--scene-hz", type=non_negative_float, default=30.0, metavar="HZ",
                      help="scene updates on /qlap/scene per second, drawn from the sense "
                           "messages (0: one per step; default: %(default)s)")
     rec.add_argument("--no-scene", action="store_true", help="record no /qlap/scene")

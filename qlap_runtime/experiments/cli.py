@@ -108,10 +108,16 @@ def main_experiment(args: argparse.Namespace, argv: list[str] | None = None) -> 
     except ExperimentError as exc:
         print(f"qlap experiment: {exc}", file=sys.stderr)
         return 2
+    from ..runtime.outputs import OutputError, check_out
     from .engine import make_backend, run_sweep
     from .report import write_report
     from .sweep import plan
 
+    try:
+        check_out(args.out)                 # before any run: writable, room for checkpoints
+    except OutputError as exc:
+        print(f"qlap experiment: {exc}", file=sys.stderr)
+        return 2
     sweep = plan(exp, args.out)
     typed = "qlap experiment " + shlex.join(argv if argv is not None else sys.argv[2:])
     print(f"{exp.name} ({exp.section}): {len(exp.arms)} conditions × {exp.agents} agents, "

@@ -229,7 +229,7 @@ def plan_slots(plans: Sequence[PlanStats], params: Params,
     (:meth:`PlanStats.eligible_for_replacement`: called more than 30 times, or old, and never
     sufficiently reliable) may be replaced (ties: the lower index); with
     ``Params.plan_replace == "lowest"`` the lowest rel(o) among all plans not sufficiently
-    reliable, and only if it is eligible (docs/decisions.md 98). If no plan qualifies,
+    reliable, and only if it is eligible (docs/decisions.md 100). If no plan qualifies,
     nothing is replaced. A sufficiently reliable ``action`` gets no new plans at all
     (§6.2.1 item 2), though removal still applies.
     """

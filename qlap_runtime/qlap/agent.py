@@ -16,6 +16,7 @@ executor returns the motor command of step t.
 from __future__ import annotations
 
 import copy
+import math
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -153,6 +154,9 @@ class Agent:
         self.params = params or Params()
         self.learner = ModelLearner(variables, self.params)
         self.table = self.learner.table
+        self.seed: int | None = seed
+        """The seed the agent was made with (a checkpoint's agent: its run's; None if the
+        checkpoint predates it)."""
         self.rng = np.random.default_rng(seed)
         self.babbler = Babbler(self.table, self.params, self.rng)
         self.actions = ActionTable(self.params)
@@ -720,13 +724,7 @@ class Agent:
             var = self.table.index(var)
         v = self.table[var]
         if isinstance(value, str):
-            labels = {Kind.CHANGE: {"-": 0, "[-]": 0, "0": 1, "[0]": 1, "+": 2, "[+]": 2},
-                      Kind.NOMINAL: {name: i for i, name in enumerate(v.values)}}
-            try:
-                value = labels[v.kind][value]
-            except KeyError:
-                raise ValueError(f"cannot name value {value!r} of {v.name} ({v.kind.value}); "
-                                 "give its index") from None
+            value = self._value_named(v, value)
         size = self._sizes()[var]
         if not 0 <= int(value) < size:
             raise ValueError(f"value {value} outside Q({v.name}) (0..{size - 1})")
@@ -737,6 +735,44 @@ class Agent:
         self.call_list.clear()
         self.mode = "idle"
         return self.goal
+
+    def _value_named(self, v: Any, text: str) -> int:
+        """The qualitative value of ``v`` that ``text`` names: ``+``/``[+]``, ``-``, ``0`` of
+        a change variable; a nominal value's name; for a magnitude or motor variable a label as
+        :meth:`ModelLearner.value_label` writes it (``(-inf, -2.5)``, ``[0.5, 0.6]``; ASCII
+        ``-inf``/``inf`` accepted), a number (the value holding it), or ``#N`` (index N)."""
+        if v.kind is Kind.CHANGE:
+            names = {"-": 0, "[-]": 0, "0": 1, "[0]": 1, "+": 2, "[+]": 2}
+        elif v.kind is Kind.NOMINAL:
+            names = {name: i for i, name in enumerate(v.values)}
+        else:
+            space = self.learner.perception.spaces[v.index]
+
+            def norm(label: str) -> str:
+                return "".join(label.split()).replace("−", "-").replace("∞", "inf") \
+                    .replace("+inf", "inf")
+
+            names = {norm(space.label(q)): q for q in range(space.size)}
+            names.update({f"[{name}]": q for name, q in list(names.items())
+                          if q % 2 == 1 and not name.startswith("[")})   # a point landmark
+            t = norm(text)
+            if t in names:
+                return names[t]
+            if t.startswith("#") and t[1:].isdigit():
+                return int(t[1:])
+            try:
+                x = float(t)
+            except ValueError:
+                x = math.nan
+            if math.isfinite(x):
+                return space.value_of(x)
+            raise ValueError(f"{v.name} has no value {text!r}: give a number (the value "
+                             f"holding it), #INDEX (0..{space.size - 1}) or one of "
+                             f"{', '.join(space.label(q) for q in range(space.size))}")
+        if text in names:
+            return names[text]
+        raise ValueError(f"{v.name} ({v.kind.value}) has no value {text!r}: one of "
+                         f"{', '.join(dict.fromkeys(names))}")
 
     def new_episode(self) -> None:
         """A new trial (§7.2.1): forget the goal and the running call list, break the

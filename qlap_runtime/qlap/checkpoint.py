@@ -553,7 +553,7 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None,
     c = agent.counters
     meta = {
         "format": AGENT_FORMAT, "version": AGENT_VERSION,
-        "seed_state": agent.rng.bit_generator.state,
+        "seed_state": agent.rng.bit_generator.state, "seed": agent.seed,
         "babbler": agent.babbler.to_state(), "actions": agent.actions.to_json(),
         "plans": plans, "next_plan_id": agent.next_plan_id,
         "call_list": [f.to_json() for f in agent.call_list], "motor": agent.motor,
@@ -572,6 +572,17 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None,
                       "plan"), fast)
     _write_compact_json(directory / "agent.json", meta)
     return directory
+
+
+def checkpoint_seed(directory: str | Path) -> int | None:
+    """The seed of the run an agent checkpoint comes from (``agent.json``'s ``seed``), or
+    None when the checkpoint does not record it (older ones) or cannot be read (loading it
+    says why)."""
+    try:
+        seed = json.loads((resolve_checkpoint(directory) / "agent.json").read_text()).get("seed")
+    except (OSError, ValueError, AttributeError, CheckpointError):
+        return None
+    return seed if isinstance(seed, int) and not isinstance(seed, bool) else None
 
 
 def load_agent(directory: str | Path) -> Any:
@@ -604,6 +615,7 @@ def load_agent(directory: str | Path) -> Any:
         agent = Agent(learner.table, learner.params)
         agent.learner = learner
         agent.rng.bit_generator.state = meta["seed_state"]
+        agent.seed = meta.get("seed")              # older checkpoints: not recorded
         agent.babbler.load_state(meta["babbler"])
         agent.actions = ActionTable.from_json(meta["actions"], learner.params)
         for d in meta["plans"]:

@@ -185,7 +185,7 @@ class Params:
     ``"eligible"``, the lowest rel(o) among the plans called more than 30 times (or old);
     ``"lowest"``, the lowest rel(o) among all the action's plans not sufficiently reliable,
     replaced only if it was called more than 30 times (or is old), so a better plan is never
-    replaced while a worse one waits (docs/decisions.md 98)."""
+    replaced while a worse one waits (docs/decisions.md 100: measured and rejected)."""
 
     max_plan_entries: int = 300_000
     """Resource limit: a plan's Q-table may hold at most this many (state, action) entries.

@@ -167,7 +167,7 @@ def test_plan_slots_replaces_lowest_prior_zero() -> None:
 
 
 def test_plan_slots_lowest_reading_never_replaces_a_better_plan() -> None:
-    """Decision 98, seed 1 of docs/results.md at step 93,999: a(Ṫ_L, [+]) held plans of 3
+    """Decision 100, seed 1 of docs/results.md at step 93,999: a(Ṫ_L, [+]) held plans of 3
     successes in 22 calls, 0 in 11 and 14 in 31 (rel(o), prior 0: 0.136, 0.0, 0.452). Only the
     best has been called more than 30 times: the literal reading replaces it; "lowest" finds
     the worst plan (0 of 11) too young to go and replaces none."""

@@ -185,7 +185,7 @@ def test_no_plan_means_the_action_fails_and_goal_mode_moves_randomly():
     agent.set_goal("x.dot", "+", idle="zero")
     assert agent.step(52, {"x": world.x}) == {"u": 0.0}
     assert RUN == "run"
-    with pytest.raises(ValueError, match="cannot name value"):
+    with pytest.raises(ValueError, match="has no value 'up'"):
         agent.set_goal("x.dot", "up")
     with pytest.raises(KeyError, match="unknown variable 'y'"):
         agent.set_goal("y", 0)
@@ -458,6 +458,24 @@ def test_a_plan_never_called_gives_its_slot_up_after_dbn_max_age():
     assert plan_dbns(agent) == [0]
     agent._convert_dbns_to_plans(100 + 100_000)          # 100,000 steps old: replaced
     assert plan_dbns(agent) == [1]
+
+
+def test_a_goal_names_a_magnitude_value_by_label_number_or_index():
+    """``qlap eval --goal h_x=…`` (:meth:`Agent.set_goal`): x has the landmark 5, so
+    Q(x) = {(−∞, 5), [5], (5, +∞)} = 0, 1, 2."""
+    agent = nrp_agent(PARAMS)
+    x = agent.table.index("x")
+    assert agent.learner.value_label(x, 0) == "(-inf, 5)"
+    for text, q in [("(-inf, 5)", 0), ("(−∞, 5)", 0), ("[5]", 1), ("(5, +inf)", 2),
+                    ("(5,inf)", 2), ("(5, ∞)", 2), ("4.2", 0), ("5", 1), ("1e3", 2), ("#1", 1)]:
+        assert agent.set_goal("x", text) == (x, q), text
+    assert agent.set_goal("x.dot", "+") == (agent.table.index("x.dot"), 2)
+    with pytest.raises(ValueError, match=r"x has no value 'nan': .*\(-inf, 5\), 5, \(5, \+inf\)"):
+        agent.set_goal("x", "nan")
+    with pytest.raises(ValueError, match=r"outside Q\(x\) \(0..2\)"):
+        agent.set_goal("x", "#3")
+    with pytest.raises(ValueError, match=r"x.dot \(change\) has no value 'up': one of -, \[-\]"):
+        agent.set_goal("x.dot", "up")
 
 
 def nrp_agent(params: Params) -> Agent:

@@ -237,7 +237,9 @@ class CoreWorld(World):
             try:
                 transfer_step = int(option)
             except ValueError:
-                raise ValueError(f"core:transfer takes a step number, got {option!r}") from None
+                transfer_step = -1
+            if transfer_step < 0:
+                raise ValueError(f"core:transfer takes a step number >= 0, got {option!r}")
         elif variant != "transfer" and variant not in ("secondary", "contingent") and option:
             raise ValueError(f"core:{variant} takes no option, got {option!r}")
         self.name = "core" + (f":{variant}" if variant else "") + (f":{option}" if option else "")
