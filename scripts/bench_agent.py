@@ -19,7 +19,7 @@ on the same checkpoint and world seed, then prints the speed ratio (this / TREE,
 median CPU times of the step loop: process CPU time is far less disturbed than wall time by
 other work on the machine) and whether both ended with byte-identical knowledge and Q-tables:
 
-    scripts/bench_agent.py --resume CKPT --steps 8000 --against ../wt-main --rounds 3
+    scripts/bench_agent.py --resume CKPT --steps 8000 --against /path/to/other/checkout --rounds 3
 """
 
 from __future__ import annotations

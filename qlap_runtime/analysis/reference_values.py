@@ -2,8 +2,8 @@
 
 Every value is read from J. Mugan, *Autonomous Qualitative Learning of Distinctions and Actions
 in a Developing Agent*, PhD dissertation, UT Austin, 2010 (section, table or figure in each
-docstring); the targets are those issue 9 sets for a 250,000-step core agent, and, beyond
-core, for a 100,000-step pong agent (§7.10). The results page judges a world by its
+docstring); the targets are the project's own (docs/results.md) for a 250,000-step core agent,
+and, beyond core, for a 100,000-step pong agent (§7.10). The results page judges a world by its
 :class:`WorldTargets` (:func:`targets_for`): :data:`CORE_TARGETS` or :data:`PONG_TARGETS`.
 """
 
@@ -85,14 +85,16 @@ U_X_LANDMARKS = ((-335.03, -333.53), (288.89, 331.27))
 300 units to move the hand" (Table 8.1, §8.1.1)."""
 
 FRICTION_BAND = (240.0, 360.0)
-"""Issue 9's target: one u_x landmark centred in [240, 360] and one in [−360, −240]."""
+"""The project's target (docs/results.md): one u_x landmark centred in [240, 360] and one in
+[−360, −240]."""
 
 
 TARGETS = MappingProxyType({
     "k": "4–8", "change_dbns": "≤ 600, flat after 150k", "landmarks_median": "≤ 4",
     "landmarks_max": "≤ 9", "narrow_count": "0", "u_x_band": "one each side",
 })
-"""Issue 9's targets for a 250,000-step core agent (5 seeds), as printed by ``qlap report``."""
+"""The project's targets (docs/results.md) for a 250,000-step core agent (5 seeds), as printed
+by ``qlap report``."""
 
 
 @dataclass(frozen=True)
@@ -108,7 +110,7 @@ class ReferenceAction:
     source: str
     """Where the reference gives it."""
     target: float
-    """Issue 9's target for rel(a) (with a plan)."""
+    """The project's target for rel(a) (with a plan; docs/results.md)."""
 
 
 ACTIONS = (
@@ -129,9 +131,9 @@ class WorldTargets:
     """What the results page (``scripts/learning_results.py``) judges a world's runs against.
 
     A target set to None is not judged (the page shows the figure, marked n/a, or leaves the
-    row out). Core's values are issue 9's for a 250,000-step core agent (the constants above);
-    pong's those it sets beyond core: volleys clearly above the random policy with bounded
-    knowledge, "plays somewhat well" (§7.10)."""
+    row out). Core's values are the project's targets (docs/results.md) for a 250,000-step core
+    agent (the constants above); pong's those it sets beyond core: volleys clearly above the
+    random policy with bounded knowledge, "plays somewhat well" (§7.10)."""
 
     world: str
     """The world (spec before any ``:variant``) these targets are set for."""
@@ -187,8 +189,8 @@ CORE_TARGETS = WorldTargets(
          "move_block and hit_floor and at least 2 on pickup; on every task at least 2 above "
          "the random policy; and a curve that rises: each of its last three checkpoints above "
          "its 20k value.")
-"""Issue 9's targets for 5 seeds × 250,000 steps of core (and the core-like worlds: core2d
-and the variants, without the absolute rewards, which are core's)."""
+"""The project's targets (docs/results.md) for 5 seeds × 250,000 steps of core (and the
+core-like worlds: core2d and the variants, without the absolute rewards, which are core's)."""
 
 PONG_TARGETS = WorldTargets(
     world="pong", steps=100_000, seeds=5, trials=100,
@@ -203,10 +205,10 @@ PONG_TARGETS = WorldTargets(
          "random policy over its trials), and every seed above the random policy's mean; and "
          "a curve that rises: each of its last three checkpoints above its 20k value (the end "
          "of babbling).")
-"""Issue 9's targets beyond core, for 5 seeds × 100,000 steps of pong: volleys clearly above
-the random policy, the curve rising, k, change DBNs ≤ 600 and not growing from 50,000 steps,
-at most 9 landmarks per variable and none narrower than the resolution. Pong fixes k = 6
-(``agent_options``, §7.10.1); the chapter-8 figures and the speed target are core's."""
+"""The project's targets (docs/results.md) beyond core, for 5 seeds × 100,000 steps of pong:
+volleys clearly above the random policy, the curve rising, k, change DBNs ≤ 600 and not growing
+from 50,000 steps, at most 9 landmarks per variable and none narrower than the resolution. Pong
+fixes k = 6 (``agent_options``, §7.10.1); the chapter-8 figures and the speed target are core's."""
 
 WORLD_TARGETS = MappingProxyType({"core": CORE_TARGETS, "pong": PONG_TARGETS})
 """The worlds with targets of their own; any other world is judged by core's."""

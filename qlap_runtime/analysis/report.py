@@ -1,12 +1,12 @@
 """What a run knows, beside the reference's figures (``qlap report``).
 
-The figures of issue 9's table, from a run's knowledge (docs/outputs.md): the window k (App. C),
-the number of change and magnitude DBNs (Fig. 7.9), landmarks per variable (Table 8.1), slivers
-(qualitative values narrower than the variable's resolution), the u_x landmarks at the friction
-threshold (Table 8.1, §8.1.1) and rel(a) of three actions with whether each has a plan (Tables
-8.2, 8.4, 8.5) of J. Mugan, *Autonomous Qualitative Learning of Distinctions and Actions in a
-Developing Agent*, PhD dissertation, UT Austin, 2010. The reference's values live in
-:mod:`.reference_values`.
+The figures of the project's knowledge table (docs/results.md), from a run's knowledge
+(docs/outputs.md): the window k (App. C), the number of change and magnitude DBNs (Fig. 7.9),
+landmarks per variable (Table 8.1), slivers (qualitative values narrower than the variable's
+resolution), the u_x landmarks at the friction threshold (Table 8.1, §8.1.1) and rel(a) of three
+actions with whether each has a plan (Tables 8.2, 8.4, 8.5) of J. Mugan, *Autonomous
+Qualitative Learning of Distinctions and Actions in a Developing Agent*, PhD dissertation, UT
+Austin, 2010. The reference's values live in :mod:`.reference_values`.
 
 Beside the final figures: the knowledge over time of each run (change and magnitude DBNs,
 plans, landmarks at every checkpoint, :mod:`.timeline`) with the verdict "change DBNs ≤ 600 and
@@ -124,7 +124,7 @@ def knowledge_figures(knowledge: Mapping[str, Any],
 
 
 def reference_figures() -> dict[str, Any]:
-    """The reference's values and issue 9's targets, as JSON."""
+    """The reference's values and the project's targets (docs/results.md), as JSON."""
     counts = dict(ref.LANDMARKS_TABLE_8_1)
     return {
         "k": {"value": ref.WINDOW_K, "target": ref.TARGETS["k"],
@@ -186,10 +186,10 @@ def _mean(values: Sequence[float | None]) -> float | None:
 
 
 def format_report(figures: Sequence[dict[str, Any]], labels: Sequence[str]) -> str:
-    """Issue 9's table: one row per measure, the reference, one column per run and the mean."""
+    """The knowledge table: one row per measure, the reference, one column per run and the mean."""
     R = reference_figures()
     many = len(figures) > 1
-    header = ["measure", "reference", "target (issue 9)", *labels] + (["mean"] if many else [])
+    header = ["measure", "reference", "target", *labels] + (["mean"] if many else [])
     rows: list[list[str]] = []
     T = ref.TARGETS
 
