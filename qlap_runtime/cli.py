@@ -848,6 +848,9 @@ def _cmd_actor(args: argparse.Namespace) -> int:
     finally:
         world.close()
     ctx = RunContext(args.run, args.world, args.steps, args.seed, params, out=args.out)
+    print(f"qlap actor {args.name}: run {args.run} via {', '.join(args.connect)}; it starts "
+          "once every actor of the run has joined (up to an hour; Ctrl-C to stop)",
+          file=sys.stderr, flush=True)
     try:
         result = run_actor(args.name, ctx, config)
     except zenoh.ZError as exc:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import statistics
 import unicodedata
 from collections.abc import Mapping, Sequence
@@ -81,6 +82,12 @@ def _find_action(knowledge: Mapping[str, Any], variable: str,
     return None
 
 
+
+def unsigned_zero(label: str) -> str:
+    """A landmark label with a zero written as ``0``, never ``-0`` (as the UI writes it)."""
+    return re.sub(r"(?<![\d.])-0(?![\d.e])", "0", label)
+
+
 def knowledge_figures(knowledge: Mapping[str, Any],
                       resolutions: Mapping[str, float] | None = None) -> dict[str, Any]:
     """The report's figures of one run's knowledge (a knowledge.json object)."""
@@ -97,9 +104,11 @@ def knowledge_figures(knowledge: Mapping[str, Any],
 
     u_x = None
     if "u_x" in lms:
-        u_x = {"landmarks": [m["label"] for m in lms["u_x"]],
-               "plus": [m["label"] for m in lms["u_x"] if lo <= centre(m) <= hi],
-               "minus": [m["label"] for m in lms["u_x"] if -hi <= centre(m) <= -lo]}
+        u_x = {"landmarks": [unsigned_zero(m["label"]) for m in lms["u_x"]],
+               "plus": [unsigned_zero(m["label"]) for m in lms["u_x"]
+                        if lo <= centre(m) <= hi],
+               "minus": [unsigned_zero(m["label"]) for m in lms["u_x"]
+                         if -hi <= centre(m) <= -lo]}
     actions = {}
     for ra in ref.ACTIONS:
         a = _find_action(knowledge, ra.variable, ra.value)

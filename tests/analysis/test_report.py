@@ -118,3 +118,10 @@ def test_resolutions_come_from_the_learner(runs, monkeypatch):
     assert set(res) == set(real["landmarks"])            # every motor and magnitude
     assert res["u_x"] == 0.25 and res["u_y"] == 1.25     # table order: u_x, u_y, …
     assert resolutions_of(runs[0] / "nowhere") == {}
+
+
+def test_a_zero_landmark_is_reported_as_0_never_minus_0():
+    from qlap_runtime.analysis.report import unsigned_zero
+
+    assert [unsigned_zero(t) for t in ("-0", "[-0, 5]", "[-10, -0]", "-0.5", "-05", "0")] == \
+        ["0", "[0, 5]", "[-10, 0]", "-0.5", "-05", "0"]
