@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from .argtypes import count, goal_arg, positive_float, positive_int
 from .errors import CliError, expected_error, one_line
@@ -51,8 +51,17 @@ def endpoint_arg(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc).removeprefix("endpoint: ")) from None
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with a one-line error, naming the command and where its help is (instead of
+    the usage block first); exit code 2 as argparse's. Subcommands' parsers are of this class
+    too (``add_subparsers`` uses the parent's)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="qlap", formatter_class=HelpFormatter,
         description="QLAP, the Qualitative Learner of Action and Perception, as a runtime.")
     p.add_argument("--version", action="version", version=f"qlap {_version()}",

@@ -157,6 +157,20 @@ def test_eval_takes_the_world_from_the_checkpoint(capsys, tmp_path):
 
 
 # ------------------------------------------------------------------------ conventions (item 7)
+@pytest.mark.parametrize(("argv", "names"), [
+    (("run", "--seed", "-1"), ("qlap run: error: argument --seed", "got -1", "qlap run --help")),
+    (("run", "--hz", "inf"), ("argument --hz", "got inf")),
+    (("eval", "--trials", "x"), ("qlap eval: error: argument --trials", "'x'")),
+    (("record", "--duration", "nan"), ("argument --duration", "got nan")),
+    (("run", "--listen", "garbage"), ("argument --listen", "'garbage'")),
+    (("nope",), ("qlap: error: argument COMMAND", "see qlap --help")),
+])
+def test_a_wrong_flag_is_one_line_naming_it(argv, names):
+    r = qlap_process(*argv)
+    assert r.returncode == 2
+    assert_one_line(r.returncode, r.stderr, *names)
+
+
 def test_version():
     r = qlap_process("--version")
     assert r.returncode == 0
