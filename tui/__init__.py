@@ -40,6 +40,9 @@ def run_process(proc: DriverProcess) -> DriverProcess:
     try:
         QlapApp(connect=proc.endpoint, run_id=proc.run_id, **proc.client).run()
     finally:
+        if proc.alive:                  # quit mid-run: the agent saves first (seconds)
+            print("stopping the agent: it writes its final checkpoint and outputs …",
+                  flush=True)
         proc.stop()
     return proc
 

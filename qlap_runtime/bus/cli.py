@@ -209,7 +209,9 @@ async def _record(cfg: zenoh.Config, args: argparse.Namespace) -> int:
         summary = await _announced(
             partial(record, cfg, args.run, args.out, stop,
                     scene_hz=None if args.no_scene else max(args.scene_hz, 0.0)),
-            f"qlap record: recording {args.run or 'every run'} to {args.out}; Ctrl-C to stop")
+            f"qlap record: recording {args.run or 'every run'} to {args.out}; "
+            + (f"stops after {args.duration:g} s or at Ctrl-C" if args.duration is not None
+               else "Ctrl-C to stop"))
         nursery.cancel_scope.cancel()
     print(f"qlap record: {summary.messages} messages on {len(summary.by_topic)} topics and "
           f"{summary.scenes} scene updates of {len(summary.runs)} run(s) to {summary.path} "
