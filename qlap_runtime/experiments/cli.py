@@ -120,7 +120,8 @@ def main_experiment(args: argparse.Namespace, argv: list[str] | None = None) -> 
         return 2
     sweep = plan(exp, args.out)
     typed = "qlap experiment " + shlex.join(argv if argv is not None else sys.argv[2:])
-    print(f"{exp.name} ({exp.section}): {len(exp.arms)} condition{'s' if len(exp.arms) != 1 else ''} × {exp.agents} agents, "
+    arms = f"{len(exp.arms)} condition{'s' if len(exp.arms) != 1 else ''}"
+    print(f"{exp.name} ({exp.section}): {arms} × {exp.agents} agents, "
           f"{exp.steps:,} steps, {len(exp.tasks)} task(s), {exp.trials} trials a checkpoint: "
           f"{len(sweep.runs)} agent runs, {len(sweep.evals)} evaluations under {args.out}",
           flush=True)
