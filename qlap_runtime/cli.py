@@ -56,6 +56,9 @@ class Parser(argparse.ArgumentParser):
     the usage block first); exit code 2 as argparse's. Subcommands' parsers are of this class
     too (``add_subparsers`` uses the parent's)."""
 
+    subcommands: dict[str, argparse.ArgumentParser]
+    """The subcommands' parsers by name (set by :func:`build_parser`)."""
+
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
@@ -288,11 +291,15 @@ def build_parser() -> argparse.ArgumentParser:
                           help="print a JSON list of {spec, description, tasks}")
     for parser in sub.choices.values():
         parser.formatter_class = HelpFormatter
+    p.subcommands = dict(sub.choices)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:               # named by the subcommand's parser, with its --help (not qlap's)
+        parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         _check_args(args)
         if args.command == "run":

@@ -164,6 +164,7 @@ def test_eval_takes_the_world_from_the_checkpoint(capsys, tmp_path):
     (("record", "--duration", "nan"), ("argument --duration", "got nan")),
     (("run", "--listen", "garbage"), ("argument --listen", "'garbage'")),
     (("nope",), ("qlap: error: argument COMMAND", "see qlap --help")),
+    (("run", "--bogus"), ("qlap run: error: unrecognized arguments: --bogus", "qlap run --help")),
 ])
 def test_a_wrong_flag_is_one_line_naming_it(argv, names):
     r = qlap_process(*argv)
