@@ -157,7 +157,8 @@ class StepInbox:
             self.drain()
         if self.buf:
             self.drop_before(step + 1)
-        self.next = max(self.next, step + 1)
+        if step >= self.next:
+            self.next = step + 1
 
     def ready(self, step: int) -> bool:
         """Whether step ``step``'s message is here (what has arrived is kept first)."""

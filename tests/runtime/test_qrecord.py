@@ -167,7 +167,7 @@ async def test_records_go_to_another_session_in_framed_bundles_and_a_cut_one_is_
     here, there = two_clients
     key = keys.key(run_id, "qstate")
     blob = b"a\x00b"
-    recs = [encode_record(t, blob, np.array([t + 0.5, 10.0]), np.array([t % 3, 10]),    # 10: a newline byte
+    recs = [encode_record(t, blob, np.array([t + 0.5, 10.0]), np.array([t % 3, 10]),  # 10: "\n"
                           [(1, 1, -1)] * (t % 2), discontinuity=t == 3) for t in range(6)]
     assert any(b"\n" in r.payload for r in recs)
     counter = RejectionCounter("remote")
