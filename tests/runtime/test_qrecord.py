@@ -13,7 +13,14 @@ import trio
 import worlds
 from actors.convert import QStateCodec
 from qlap_runtime.bus import keys
-from qlap_runtime.bus.bridge import FRAMED, Publisher, RejectionCounter, TrioSubscriber, frame
+from qlap_runtime.bus.bridge import (
+    FRAMED,
+    Publisher,
+    RejectionCounter,
+    TrioSubscriber,
+    frame,
+    unframe,
+)
 from qlap_runtime.bus.qrecord import (
     HEAD,
     MAGIC,
@@ -196,3 +203,13 @@ async def test_records_go_to_another_session_in_framed_bundles_and_a_cut_one_is_
                 got = [r.msg for r in await remote.receive_batch()]
                 assert got in ([], [recs[0]])
         assert counter.total == 1 and "truncated" in counter.last_error
+
+
+def test_unframe_gives_what_a_forged_or_cut_bundle_holds_and_never_raises():
+    parts = [b"abc", b"", b"\n\x00xyz"]
+    data = frame(parts)
+    assert unframe(data) == parts
+    assert unframe(data[:-2]) == [b"abc", b"", b"\n\x00x"]     # the last one cut
+    assert unframe(data + b"zz") == [*parts, b"zz"]            # bytes left over: one more
+    assert unframe(data[:5]) == [data[:5]]                      # lengths cut: the whole
+    assert unframe(b"\xff\xff\xff\xff") == [b"\xff\xff\xff\xff"] and unframe(b"") == [b""]
