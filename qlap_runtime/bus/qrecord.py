@@ -158,11 +158,28 @@ def encode_rejected(step: int, reason: str) -> QRecord:
                    step, 0, 0, b"", why)
 
 
+RECENT = 256
+"""Records decoded lately, kept by payload (:func:`decode_record`): the two learners sharing a
+process each subscribe to ``qstate`` and get every record, so the second decodes none."""
+_recent: dict[bytes, QRecord] = {}
+
+
 def decode_record(payload: bytes | bytearray | memoryview) -> QRecord:
     """The record ``payload`` holds, validated — its size, flags, names, real values finite or
     NaN, qualitative values ≥ −1, events on known variables with a direction in {−1, 0, 1} —
-    else :class:`RecordError`."""
+    else :class:`RecordError`. A payload decoded lately gives the same (immutable) record."""
     data = bytes(payload)
+    rec = _recent.get(data)
+    if rec is not None:
+        return rec
+    rec = _decode(data)
+    if len(_recent) >= RECENT:
+        _recent.clear()
+    _recent[data] = rec
+    return rec
+
+
+def _decode(data: bytes) -> QRecord:
     if len(data) < HEAD.size:
         raise RecordError(f"{len(data)} bytes: shorter than the {HEAD.size}-byte header")
     magic, version, flags, step, n, ne, nlen, rlen = HEAD.unpack_from(data)
