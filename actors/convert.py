@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from qlap_runtime.bus.qrecord import QRecord, encode_record, encode_rejected, names_blob
 from qlap_runtime.bus.schema import BatchContext, PlanRequest, QState, Sense, WorldView
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import learner_state, load_agent, restore_learner, save_agent
@@ -107,11 +108,23 @@ def world_view(world: Any, name: str, t: int, obs: dict, applied: dict) -> World
 
 
 class QStateCodec:
-    """``qstate`` messages of one variable table: names in table order, built once."""
+    """``qstate`` messages of one variable table: names in table order, built once; the
+    perception actor writes binary records (:meth:`record`, docs/decisions.md 98), a consumer
+    takes those or JSON messages (:meth:`percept`)."""
 
     def __init__(self, table: VariableTable) -> None:
         self.names = tuple(v.name for v in sorted(table, key=lambda v: v.index))
         self.index = {name: i for i, name in enumerate(self.names)}
+        self.blob = names_blob(self.names)
+
+    def record(self, p: Percept) -> QRecord:
+        """The perception actor's record of a percept: its arrays as they are."""
+        return encode_record(p.step, self.blob, p.x, p.q, p.events, p.discontinuity)
+
+    @staticmethod
+    def rejected(t: int, reason: str) -> QRecord:
+        """The record of a rejected step t."""
+        return encode_rejected(t, reason)
 
     def message(self, p: Percept) -> QState:
         """The perception actor's message of a percept (a NaN: not yet known, left out)."""
@@ -121,8 +134,12 @@ class QStateCodec:
         events = tuple((names[e.var], int(e.value), int(e.direction)) for e in p.events)
         return QState(p.step, q, events, x, discontinuity=p.discontinuity)
 
-    def percept(self, msg: QState) -> Percept:
-        """The perception actor's :class:`Percept`, rebuilt from its message."""
+    def percept(self, msg: QState | QRecord) -> Percept:
+        """The perception actor's :class:`Percept`, rebuilt from its message: a record's arrays
+        as they are (read-only; its names are the table's, ``qstate_rule`` checked them)."""
+        if type(msg) is QRecord:
+            events = tuple(Event(v, val, d) for v, val, d in msg.events.tolist())
+            return Percept(msg.step, msg.x, msg.q, events, _NO_IDS, msg.discontinuity)
         index = self.index
         x = self._vector(msg.x, np.nan, float)
         q = self._vector(msg.values, -1, np.int64)
@@ -140,6 +157,9 @@ class QStateCodec:
         if by_name:
             out[[self.index[k] for k in by_name]] = list(by_name.values())
         return out
+
+
+_NO_IDS = np.zeros(0, dtype=np.int64)
 
 
 def batch_context(agent: Any, step: int) -> BatchContext:

@@ -5,7 +5,8 @@ placement, the processes placement's default groups) the world's task calls
 :meth:`PerceptionActor.step` right after ``sense(t)`` (docs/decisions.md 52); the actor then
 takes ``sense(t)`` from the :class:`~actors.chain.Chain` and perceives with the executor's
 learner's own perception, which the executor then learns from without perceiving again
-(decision 83). Its skeleton — inputs, rules, replay log, snapshots — is
+(decision 83). It publishes ``qstate`` as binary records of the percept's arrays (decision
+98). Its skeleton — inputs, rules, replay log, snapshots — is
 :mod:`qlap_runtime.runtime.actor`'s.
 """
 
@@ -14,7 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from qlap_runtime.bus import keys
-from qlap_runtime.bus.schema import QState, Sense
+from qlap_runtime.bus.schema import Sense
 from qlap_runtime.qlap.perception import InvalidObservation, Percept, Perception
 from qlap_runtime.runtime.actor import Actor, ActorBase
 from qlap_runtime.runtime.batches import hands_over
@@ -76,9 +77,9 @@ class PerceptionActor(ActorBase):
         p, rejected = self.perceive(t, msg)
         if chain is not None:
             chain.perceived(p, rejected)
-        if p is None or self.out.wanted:
-            self.out.put(t, QState(t, {}, (), {}, rejected=rejected) if p is None
-                         else self.codec.message(p))
+        if p is None or self.out.wanted:        # a binary record (docs/decisions.md 98)
+            self.out.put(t, self.codec.rejected(t, rejected) if p is None
+                         else self.codec.record(p))
         else:
             self.out.skip()
         actor.slot.done(t)

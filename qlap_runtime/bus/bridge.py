@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import struct
 import threading
 import time
 from collections import deque
@@ -36,7 +37,8 @@ import zenoh
 
 from . import keys
 from .faults import Faults
-from .schema import TOPIC_TYPES, Message, MessageError, Rejected, decode, encode
+from .qrecord import MAGIC
+from .schema import TOPIC_TYPES, WIRE_TYPES, Message, MessageError, Rejected, decode, encode
 
 log = logging.getLogger("qlap.bus")
 
@@ -63,6 +65,11 @@ BUNDLE = b"qlap-bundle"
 joined by newlines (compact JSON has none): :meth:`Publisher.hold` and :meth:`Publisher.flush`
 send them, :class:`TrioSubscriber` hands them out one by one (docs/decisions.md 91)."""
 
+FRAMED = b"qlap-bundle-framed"
+"""The attachment of a bundle whose messages may be binary (``qstate`` records, which may hold
+newlines): their count and lengths, then the payloads (:func:`frame`, :func:`unframe`;
+docs/decisions.md 98)."""
+
 T = TypeVar("T")
 _DONE: Any = object()
 
@@ -74,6 +81,29 @@ def congestion_control(topic: str) -> zenoh.CongestionControl:
     if topic in DISPLAY_TOPICS:
         return zenoh.CongestionControl.DROP
     raise keys.BusKeyError(f"unknown topic {topic!r}")
+
+
+def frame(payloads: list[bytes]) -> bytes:
+    """``payloads`` as one :data:`FRAMED` bundle: their count and lengths (uint32,
+    little-endian), then the payloads one after the other (two C calls on the step chain)."""
+    n = len(payloads)
+    return struct.pack(f"<{n + 1}I", n, *map(len, payloads)) + b"".join(payloads)
+
+
+def unframe(data: bytes) -> list[bytes]:
+    """The payloads of a :data:`FRAMED` bundle. A forged or cut bundle gives what it can — a
+    cut payload, or the whole sample as one when its count does not fit — which the decoder
+    rejects (so it is counted), never an exception."""
+    n = int.from_bytes(data[:4], "little")
+    if len(data) < 4 * (n + 1):
+        return [data]
+    at, out = 4 * (n + 1), []
+    for size in struct.unpack_from(f"<{n}I", data, 4):
+        out.append(data[at:at + size])
+        at += size
+    if at < len(data):
+        out.append(data[at:])               # bytes left over: one more (invalid) payload
+    return out
 
 
 # --------------------------------------------------------------------------- inbox
@@ -275,10 +305,11 @@ class TrioSubscriber:
             att = sample.attachment
             if att is not None:
                 tag = att.to_bytes()
-                if tag == BUNDLE:            # several messages (Publisher.flush)
-                    key, now = str(sample.key_expr), time.time_ns()
-                    self._inbox.push_many([(key, part, now, None)
-                                           for part in sample.payload.to_bytes().split(b"\n")])
+                if tag == BUNDLE or tag == FRAMED:      # several messages (Publisher.flush)
+                    key, now, data = str(sample.key_expr), time.time_ns(), \
+                        sample.payload.to_bytes()
+                    parts = data.split(b"\n") if tag == BUNDLE else unframe(data)
+                    self._inbox.push_many([(key, part, now, None) for part in parts])
                     return
                 if self._routes.delivered(tag, self._since):
                     return                   # a Publisher of this session handed it over
@@ -450,6 +481,8 @@ class Publisher:
         self.key = keys.key(run_id, topic)
         self.topic = topic
         self.msg_type = TOPIC_TYPES[topic]
+        self.msg_types = WIRE_TYPES[topic]
+        """The message types it takes (``qstate``: JSON or a binary record)."""
         self.congestion = congestion if congestion is not None else congestion_control(topic)
         if express is None and topic in LOCKSTEP_TOPICS:
             express = True           # the step chain waits for these: no batching delay
@@ -480,6 +513,8 @@ class Publisher:
         """Payloads :meth:`hold` kept for other sessions until :meth:`flush`."""
         self.held_bytes = 0
         """Their size (a bundle over Zenoh's 64 KiB batch is fragmented, which costs)."""
+        self._held_binary = False
+        """Whether a held payload is binary (then the bundle is :data:`FRAMED`)."""
         self.bundles = 0
         """Zenoh puts of several held messages (:meth:`flush`)."""
         self._sender: Sender | None = None
@@ -489,7 +524,7 @@ class Publisher:
         """Encode and publish ``msg``; a message of the wrong type or with a NaN raises
         (:class:`TypeError` / :class:`~.schema.MessageError`): that is a bug in the caller.
         False only when an injected fault dropped it (:mod:`.faults`)."""
-        if type(msg) is not self.msg_type:
+        if type(msg) not in self.msg_types:
             raise TypeError(f"{self.key} carries {self.msg_type.__name__}, "
                             f"not {type(msg).__name__}")
         self.sent += 1
@@ -509,7 +544,7 @@ class Publisher:
         topic, it is :meth:`put`. Same answer as :meth:`put`."""
         if self.faults is not None or not self.remote_only:
             return self.put(msg)
-        if type(msg) is not self.msg_type:
+        if type(msg) not in self.msg_types:
             raise TypeError(f"{self.key} carries {self.msg_type.__name__}, "
                             f"not {type(msg).__name__}")
         self.sent += 1
@@ -518,6 +553,8 @@ class Publisher:
             sub.deliver(self.key, payload, msg)
         self._held.append(payload)
         self.held_bytes += len(payload)
+        if payload[:3] == MAGIC:
+            self._held_binary = True
         return True
 
     @property
@@ -532,14 +569,14 @@ class Publisher:
         goes on while Zenoh blocks (congestion control BLOCK towards a reader that is behind;
         the put releases the GIL; docs/decisions.md 96); ``wait=True`` returns once every
         sample held or handed to the thread is on Zenoh."""
-        held = self._held
+        held, binary = self._held, self._held_binary
         if held:
-            self._held, self.held_bytes = [], 0
+            self._held, self.held_bytes, self._held_binary = [], 0, False
             if not self._remote_now():
                 self.skipped += len(held)
             else:
                 sample = (held[0], None) if len(held) == 1 \
-                    else (b"\n".join(held), BUNDLE)
+                    else (frame(held), FRAMED) if binary else (b"\n".join(held), BUNDLE)
                 self.bundles += len(held) > 1
                 if not wait:
                     if self._sender is None:

@@ -43,6 +43,7 @@ from .. import __version__
 from . import keys
 from .bridge import Received, RejectionCounter, TrioSubscriber
 from .config import client_config
+from .qrecord import QRecord
 from .schema import (
     MESSAGE_TYPES,
     TOPIC_TYPES,
@@ -50,6 +51,7 @@ from .schema import (
     Sense,
     WorldView,
     decode,
+    encode,
     json_schema,
     schema_name,
 )
@@ -200,8 +202,12 @@ class McapSink:
                 topic=mcap_topic(topic), message_encoding=MessageEncoding.JSON,
                 schema_id=self._schemas[cls], metadata={"run_id": run_id, "key": r.key})
             run.channels[topic] = cid
-        self._add(cid, r.recv_ns, r.payload)
         msg = r.msg if r.msg is not None else decode(r.key, r.payload)
+        payload = r.payload
+        if isinstance(msg, QRecord):            # recorded as its JSON message (decision 98)
+            msg = msg.to_qstate()
+            payload = encode(msg)
+        self._add(cid, r.recv_ns, payload)
         if isinstance(msg, Sense):
             self._scene(run, msg, r.recv_ns)
         else:
@@ -372,7 +378,9 @@ async def echo(source: Source, key_expr: str, stop_event: trio.Event, *,
             nursery.start_soon(stop)
             async for batch in sub:
                 for r in batch:
-                    text = r.payload.decode("utf-8", "backslashreplace")
+                    payload = encode(r.msg.to_qstate()) if isinstance(r.msg, QRecord) \
+                        else r.payload                  # a record as JSON (decision 98)
+                    text = payload.decode("utf-8", "backslashreplace")
                     out.write(f"{r.key} {text}\n")
                     n += 1
                     if limit is not None and n >= limit:

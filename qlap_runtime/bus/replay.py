@@ -27,6 +27,7 @@ import zenoh
 
 from . import keys
 from .bridge import RejectionCounter, TrioInbox
+from .qrecord import QRecord
 from .schema import Message, decode, encode
 
 log = logging.getLogger("qlap.bus")
@@ -51,8 +52,10 @@ class ReplayLog:
 
     def append(self, step: int, msg: Message, payload: bytes | None = None) -> None:
         # A compact copy: orjson's result keeps the 8 kB buffer it was written into (a core
-        # qstate of 0.6 kB then holds 8 kB; 7,100 steps of three topics held 170 MB).
-        payload = bytes(memoryview(encode(msg) if payload is None else payload))
+        # qstate of 0.6 kB then holds 8 kB; 7,100 steps of three topics held 170 MB). A
+        # qstate record's payload is joined to its size already (docs/decisions.md 98).
+        if type(msg) is not QRecord or payload is None:
+            payload = bytes(memoryview(encode(msg) if payload is None else payload))
         with self._lock:
             self._entries.append((int(step), payload))
             horizon = int(step) - self.keep

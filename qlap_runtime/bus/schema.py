@@ -9,7 +9,9 @@ JSON). Sequences are JSON arrays and decode to tuples; ``float`` fields accept J
 :func:`decode` validates everything (JSON syntax, object shape, required and unknown fields,
 every field's type, finite numbers, the version, per-type rules) and raises
 :class:`MessageError` carrying the key expression. :func:`json_schema` gives the JSON Schema
-(draft 2020-12) of each type, used as the MCAP schema by the recorder. No pickle.
+(draft 2020-12) of each type, used as the MCAP schema by the recorder. No pickle. One
+exception: ``qstate`` may also be a binary record of arrays (:mod:`.qrecord`, the perception
+actor's, docs/decisions.md 98), which the recorder and ``echo`` write as its JSON message.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import orjson
 from ..qlap.delta import Delta
 from ..qlap.plan_delta import PlanDelta
 from . import keys
+from .qrecord import QRecord, RecordError, decode_record, is_record
 
 JSON = Any
 """A JSON value (null, bool, number, string, array, object) with finite numbers."""
@@ -466,7 +469,8 @@ class AgentStatus:
 
 
 Message = (Sense | QState | Motor | DeltaMsg | CallList | IACChoice | Stats | Control
-           | Knowledge | WorldView | AgentStatus | BatchContext | PlanRequest | PlanDeltaMsg)
+           | Knowledge | WorldView | AgentStatus | BatchContext | PlanRequest | PlanDeltaMsg
+           | QRecord)
 
 TOPIC_TYPES: dict[str, type] = {
     "sense": Sense, "qstate": QState, "motor": Motor, "delta/dbn": DeltaMsg,
@@ -479,6 +483,11 @@ TOPIC_TYPES: dict[str, type] = {
 MESSAGE_TYPES: tuple[type, ...] = (Sense, QState, Motor, DeltaMsg, CallList, IACChoice, Stats,
                                    Control, Knowledge, WorldView, AgentStatus, BatchContext,
                                    PlanRequest, PlanDeltaMsg)
+
+WIRE_TYPES: dict[str, tuple[type, ...]] = {t: (c,) for t, c in TOPIC_TYPES.items()}
+WIRE_TYPES["qstate"] = (QState, QRecord)
+"""The Python types a topic's payloads may be: ``qstate`` is a JSON :class:`QState` or the
+perception actor's binary :class:`~.qrecord.QRecord` (docs/decisions.md 98)."""
 
 SUPPORTED_VERSIONS: dict[type, frozenset[int]] = {t: frozenset({1}) for t in MESSAGE_TYPES}
 """Versions :func:`decode` accepts, per type."""
@@ -495,7 +504,10 @@ def encode(msg: Message) -> bytes:
     orjson does the work (several times faster than :mod:`json` on the step chain's messages).
     It writes a NaN or infinity as ``null``, so a payload holding ``null`` is re-encoded by the
     standard library with ``allow_nan=False``, which raises on them; so is anything orjson does
-    not take (float subclasses such as ``numpy.float64``, non-string keys)."""
+    not take (float subclasses such as ``numpy.float64``, non-string keys). A
+    :class:`~.qrecord.QRecord` is its own payload."""
+    if type(msg) is QRecord:
+        return msg.payload
     obj = _to_obj(msg)
     try:
         out = orjson.dumps(obj)
@@ -553,12 +565,18 @@ def decode(key_expr: str, payload: bytes | bytearray | memoryview | str) -> Mess
     """The message that ``payload`` holds, validated against the type of ``key_expr``'s topic.
 
     Raises :class:`MessageError` (with the key expression) for an unknown key, bad UTF-8 or
-    JSON, NaN/infinity, a missing, unknown or wrongly typed field, or an unknown version.
+    JSON, NaN/infinity, a missing, unknown or wrongly typed field, or an unknown version. On
+    ``qstate`` a payload that starts as a binary record (:mod:`.qrecord`) is one.
     """
     key_expr = str(key_expr)
     topic, cls, problem = _topic_type(key_expr)
     if cls is None:
         raise MessageError(key_expr, problem)
+    if cls is QState and is_record(payload):
+        try:
+            return decode_record(payload)
+        except RecordError as e:
+            raise MessageError(key_expr, f"invalid qstate record: {e}") from None
     try:
         obj = orjson.loads(payload)     # strict JSON: NaN, Infinity and bad UTF-8 raise
     except (orjson.JSONDecodeError, TypeError) as e:

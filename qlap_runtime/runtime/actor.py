@@ -40,6 +40,7 @@ from ..bus.bridge import (
     declare_alive,
 )
 from ..bus.faults import Faults
+from ..bus.qrecord import payload_bytes, payload_text
 from ..bus.replay import ReplayLog, fetch_replay
 from ..bus.schema import Message, decode
 from . import snapshot as snap
@@ -160,9 +161,9 @@ class Output:
 
     def saved(self, since: int | None = None) -> list[list]:
         """The logged ``[step, payload]`` entries from step ``since`` on, for a snapshot
-        (:meth:`Actor.restore_log` serves them again)."""
+        (:meth:`Actor.restore_log` serves them again; a binary record as base64)."""
         return [] if self._log is None \
-            else [[s, p.decode()] for s, p in self._log.payloads(since)]
+            else [[s, payload_text(p)] for s, p in self._log.payloads(since)]
 
     def close(self) -> None:
         if self._log is not None:
@@ -237,8 +238,9 @@ class Actor:
 
     def restore_log(self, output: Output, entries: list) -> None:
         """Serve again the ``[step, payload]`` entries a snapshot kept of ``output``'s log."""
-        for step, payload in entries:
-            output.log.append(int(step), decode(output.key, payload), payload.encode())
+        for step, text in entries:
+            payload = payload_bytes(text)
+            output.log.append(int(step), decode(output.key, payload), payload)
 
     async def start(self) -> None:
         """Declare the actor alive (every subscription exists) and, when restarted, restore

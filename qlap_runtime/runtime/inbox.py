@@ -157,7 +157,8 @@ class StepInbox:
             self.drain()
         if self.buf:
             self.drop_before(step + 1)
-        self.next = max(self.next, step + 1)
+        if step >= self.next:
+            self.next = step + 1
 
     def ready(self, step: int) -> bool:
         """Whether step ``step``'s message is here (what has arrived is kept first)."""
@@ -269,9 +270,10 @@ class DeltaInbox:
         self.realtime = ctx.realtime
         self.stale = 0
         self.refills = 0
-        self.refill: Callable[[], Awaitable[list]] | None = None
-        """Fetches the learners' delta logs again when a due delta does not come (lockstep;
-        None under the realtime clock, where deltas apply when they arrive)."""
+        self.refill: Callable[[int], Awaitable[list]] | None = None
+        """Fetches the learners' delta logs again, from a step boundary on, when a due delta
+        does not come (lockstep; None under the realtime clock, where deltas apply when they
+        arrive)."""
         if not ctx.realtime:
             self.refill = self._refill_from(session, ctx, counter)
 
@@ -324,16 +326,17 @@ class DeltaInbox:
 
     @staticmethod
     def _refill_from(session: Any, ctx: RunContext,
-                     counter: RejectionCounter) -> Callable[[], Awaitable[list]]:
-        async def refill() -> list:
-            return await fetch_replay(session, ctx.run_id, "delta/*", 0, counter=counter)
+                     counter: RejectionCounter) -> Callable[[int], Awaitable[list]]:
+        async def refill(boundary: int) -> list:
+            # The learners log a delta under the boundary it applies at (computed_at + L).
+            return await fetch_replay(session, ctx.run_id, "delta/*", boundary, counter=counter)
         return refill
 
     async def catch_up(self, session: Any, ctx: RunContext, counter: RejectionCounter) -> int:
         """A restarted actor: add every delta the learners' replay logs hold (after
         subscribing, so none published meanwhile is lost); return how many came back."""
         self.refill = refill = self.refill or self._refill_from(session, ctx, counter)
-        msgs = await refill()
+        msgs = await refill(0)
         for msg in msgs:
             self.add(msg, live=False)
         return len(msgs)
@@ -355,13 +358,15 @@ class DeltaInbox:
                         self.take(await self.sub.receive_batch())
                         continue
                     # Not here in time: ask the learners' replay logs again (a lost delta, or
-                    # a learner that was itself restarting when a restarted actor asked).
+                    # a learner that was itself restarting when a restarted actor asked), for
+                    # the deltas not applied yet only (those before are stale here): the
+                    # chain decoded every delta of the run at every refill before.
                     batch: list = []
                     with trio.move_on_at(refills.deadline):
                         batch = await self.sub.receive_batch()
                     self.take(batch)
                     if not self.book.ready(step) and refills.due():
-                        for msg in await self.refill():        # type: ignore[misc]
+                        for msg in await self.refill(self.book.last + 1):  # type: ignore[misc]
                             self.add(msg, live=False)
                         refills.asked_now()
                         self.refills += 1

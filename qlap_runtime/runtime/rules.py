@@ -17,6 +17,9 @@ import numbers
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
+
+from ..bus.qrecord import QRecord, names_blob
 from ..qlap.delta import AddDBN, AddLandmark, SetContext, SetK, op_from_json
 from ..qlap.params import Params
 from .lockstep import batch_kinds
@@ -48,11 +51,20 @@ def motor_rule(specs: Sequence[Any]) -> Rule:
 
 def qstate_rule(names: Sequence[str]) -> Rule:
     """``qstate(t)``: values, real values and events name variables of the table; qualitative
-    values and directions are small integers."""
+    values and directions are small integers. A binary record (docs/decisions.md 98) names the
+    table's variables in the table's order (one comparison of its names' bytes); its
+    structure was checked by the decoder."""
     known = frozenset(names)
+    blob = names_blob(tuple(names))
 
     def check(msg: Any) -> str | None:
         if msg.rejected:
+            return None
+        if type(msg) is QRecord:
+            if msg.names_blob != blob:
+                return _record_names(msg, names, known)
+            if msg.n and (top := int(np.maximum.reduce(msg.q))) >= 10_000:
+                return f"qstate({msg.step}): qualitative value {top} out of range"
             return None
         for field, d in (("values", msg.values), ("x", msg.x)):
             if not d.keys() <= known:
@@ -68,6 +80,14 @@ def qstate_rule(names: Sequence[str]) -> Rule:
         return None
 
     return check
+
+
+def _record_names(msg: QRecord, names: Sequence[str], known: frozenset[str]) -> str:
+    bad = sorted(set(msg.names) - known)[:3]
+    if bad:
+        return f"qstate({msg.step}): unknown variable(s) {bad} in the record"
+    return f"qstate({msg.step}): the record's {len(msg.names)} variables are not the " \
+           f"table's {len(names)} in the table's order"
 
 
 def batchctx_rule(n_vars: int) -> Rule:

@@ -193,6 +193,8 @@ class Display:
             pubs["status"].put(status)
             if cad.stats_due(now):
                 pubs["stats"].put(telemetry.stats_msg(status, actor=self.actor))
+        if not force and now - cad.last_knowledge < cad.knowledge_min_s:
+            return                  # most steps: no knowledge snapshot is due, skip its signature
         sig = telemetry.knowledge_signature(agent)
         if (cad.knowledge_due(now, agent.step_count, sig)
                 or (force and sig != cad.last_signature)) and pubs["knowledge"].matched:

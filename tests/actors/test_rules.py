@@ -7,11 +7,13 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import trio
 
 import worlds
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import RejectionCounter, TrioSubscriber
+from qlap_runtime.bus.qrecord import QRecord, encode_record
 from qlap_runtime.bus.schema import Control, DeltaMsg, Motor, QState, Sense, encode
 from qlap_runtime.placements.launcher import run_embedded_async
 from qlap_runtime.qlap import Params
@@ -21,6 +23,11 @@ from tests.actors.test_lockstep import STEPS, context, sync_knowledge
 
 PARAMS = Params(babble_steps=1500, dbn_period=500, landmark_period=1000)
 FORGE_AT = tuple(range(100, 1100, 100))
+
+
+def bogus_record(t: int) -> QRecord:
+    """A well-formed ``qstate`` record of a table the world does not have."""
+    return encode_record(t, b"zz\x00h_x", np.array([0.5, 1.0]), np.array([1, 1]))
 
 
 def forger(escape: str):
@@ -46,6 +53,9 @@ def forger(escape: str):
                     session.put(k("delta/dbn"), encode(DeltaMsg("dbn", bad_dbn)))
                     session.put(k("delta/dbn"), encode(DeltaMsg("dbn", off_step)))
                     session.put(k("qstate"), encode(QState(t, {"zz": 1}, (), {})))
+                    # binary records (decision 98): of another table, and cut
+                    session.put(k("qstate"), bogus_record(t).payload)
+                    session.put(k("qstate"), bogus_record(t).payload[:-1])
                     session.put(k("sense"), encode(Sense(t + 100, {"h_x": 0.0})))
                     session.put(k("control"), encode(Control("save", {"path": escape})))
                 if len(done) == len(FORGE_AT):
@@ -64,11 +74,12 @@ def test_rule_breaking_messages_are_counted_and_change_nothing(tmp_path):
     actors = summary["actors"]
     assert actors["world"]["rejected"] == 3 * n          # unknown motor, 1e300, window
     assert actors["perception"]["rejected"] == 3 * n     # sense window, two bad deltas
-    assert actors["contingency"]["rejected"] == 3 * n    # qstate unknown var, two bad deltas
-    assert actors["landmarks"]["rejected"] == 3 * n
-    assert actors["executor"]["rejected"] == 4 * n       # ... and the save outside the run
+    # qstate unknown var (JSON, a record), a cut record, two bad deltas
+    assert actors["contingency"]["rejected"] == 5 * n
+    assert actors["landmarks"]["rejected"] == 5 * n
+    assert actors["executor"]["rejected"] == 6 * n       # ... and the save outside the run
     assert actors["planner"]["rejected"] == 2 * n        # the two bad deltas
-    assert summary["rejected_messages"] == 18 * n
+    assert summary["rejected_messages"] == 24 * n
     assert not (tmp_path / "escaped").exists()
     got = (out / "knowledge.json").read_text()
     assert json.loads(got)["dbns"]
