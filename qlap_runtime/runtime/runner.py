@@ -183,18 +183,11 @@ class Display:
         after a command); ``clock`` gives the status its pause, speed and last answer."""
         cad, now, pubs = self.cadence, time.perf_counter(), self.pubs
         if cad.display_due(now) or force:
-            # The IAC choices, the call list and the world are built only while someone
-            # listens (docs/decisions.md 102); a viewer joining later gets the choices made
-            # from then on, as before, when they went out to no one.
-            if pubs["iac"].matched:
-                for msg in telemetry.iac_msgs(agent, cad.last_iac_step):
-                    pubs["iac"].put(msg)
-                    cad.last_iac_step = msg.step
-            elif agent.iac_log:
-                cad.last_iac_step = max(cad.last_iac_step, int(agent.iac_log[-1].step))
-            if pubs["calllist"].matched:
-                pubs["calllist"].put(telemetry.call_list_msg(agent))
-            if self.world_view is not None and pubs["world"].matched:
+            for msg in telemetry.iac_msgs(agent, cad.last_iac_step):
+                pubs["iac"].put(msg)
+                cad.last_iac_step = msg.step
+            pubs["calllist"].put(telemetry.call_list_msg(agent))
+            if self.world_view is not None:
                 pubs["world"].put(self.world_view())
             status = self.status(agent, clock, clock_name=clock_name, now=now, **ticks)
             pubs["status"].put(status)

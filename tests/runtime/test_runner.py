@@ -78,39 +78,3 @@ async def test_display_publishes_the_status_a_viewer_reads(embedded):
         with trio.fail_after(10):
             batch = await sub.receive_batch()
         assert batch[-1].msg.finished and not batch[-1].msg.paused
-
-
-async def test_display_builds_the_iac_choices_and_call_list_only_for_a_listener(embedded):
-    """Nobody listens: no IAC choice or call list is built (docs/decisions.md 102), the status
-    still goes out, and a viewer joining later gets the choices made from then on."""
-    world = worlds.make("core2d")
-    try:
-        a = Agent(world.variables, Params(babble_steps=30), seed=0)
-        obs = world.reset(seed=0)
-        for t in range(60):
-            obs = world.step(a.step(t, obs))
-        clock = RunControl()
-        with Display(embedded, "runner-iac", placement="embedded", world="core2d",
-                     seed=0) as d:
-            d.publish(a, clock, clock_name="lockstep", force=True)
-            assert d.pubs["iac"].sent == d.pubs["calllist"].sent == 0
-            assert d.pubs["status"].sent == 1
-            seen = a.iac_log[-1].step
-            assert d.cadence.last_iac_step == seen
-            with TrioSubscriber(embedded, keys.key("runner-iac", "iac")) as iac, \
-                    TrioSubscriber(embedded, keys.key("runner-iac", "calllist")) as calls:
-                with trio.fail_after(10):
-                    await d.pubs["iac"].wait_matched()
-                    await d.pubs["calllist"].wait_matched()
-                for t in range(60, 120):
-                    obs = world.step(a.step(t, obs))
-                d.publish(a, clock, clock_name="lockstep", force=True)
-                with trio.fail_after(10):
-                    got = [m.msg for m in await iac.receive_batch()]
-                    while got[-1].step != a.iac_log[-1].step:
-                        got += [m.msg for m in await iac.receive_batch()]
-                    listed = (await calls.receive_batch())[-1].msg
-                assert [m.step for m in got] == [c.step for c in a.iac_log if c.step > seen]
-                assert listed.step == a.step_count
-    finally:
-        world.close()
