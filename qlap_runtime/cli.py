@@ -1007,11 +1007,15 @@ def pretty(text: str) -> str:
 
 def format_knowledge(k: dict, show_all: bool = False, limit: int | None = None) -> str:
     """Knowledge grouped by action (Tables 8.2–8.6), landmarks first."""
-    lines = [f"step {k['step']}, window k = {k['k']}", "", "landmarks:"]
+    lines = [f"after {k['step'] + 1:,} steps (t = {k['step']}), window k = {k['k']}", "",
+             "landmarks learned (beside the initial ones of Table 3.1):"]
+    n_lines = len(lines)
     for name, lms in k["landmarks"].items():
         learned = [m["label"] for m in lms if m["source"] != "initial"]
         if learned:
             lines.append(f"  {pretty(name):10s} {', '.join(learned)}")
+    if len(lines) == n_lines:
+        lines.append("  none yet")
     dbns = {d["id"]: d for d in k["dbns"]}
     actions = sorted(k.get("actions", []), key=lambda a: (-a["reliability"], a["label"]))
     lines += ["", f"actions with plans ({sum(1 for a in actions if a['plans'])}):"]
