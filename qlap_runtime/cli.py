@@ -842,7 +842,7 @@ def _cmd_actor(args: argparse.Namespace) -> int:
 
     from .agent_run import params_for_world
     from .bus import keys
-    from .bus.cli import client_from_args
+    from .bus.cli import client_from_args, connect_failure
     from .bus.config import BusConfigError
     from .placements.launcher import run_actor
     from .qlap import Params
@@ -864,13 +864,13 @@ def _cmd_actor(args: argparse.Namespace) -> int:
     finally:
         world.close()
     ctx = RunContext(args.run, args.world, args.steps, args.seed, params, out=args.out)
-    print(f"qlap actor {args.name}: run {args.run} via {', '.join(args.connect)}; it starts "
-          "once every actor of the run has joined (up to an hour; Ctrl-C to stop)",
-          file=sys.stderr, flush=True)
+    print(f"qlap actor {args.name}: run {args.run}, connecting to {', '.join(args.connect)}; "
+          "then it waits until every actor of the run has joined (up to an hour; Ctrl-C to "
+          "stop)", file=sys.stderr, flush=True)
     try:
         result = run_actor(args.name, ctx, config)
     except zenoh.ZError as exc:
-        print(f"qlap actor: cannot connect to {', '.join(args.connect)}: {exc}",
+        print(f"qlap actor: {connect_failure(args.connect, one_line(exc), args.credentials)}",
               file=sys.stderr)
         return 1
     except KeyboardInterrupt:
