@@ -386,7 +386,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
     from tui import QlapApp
 
     from .bus.auth import UI_USER
-    from .bus.cli import credentials_for
+    from .bus.cli import connect_failure, credentials_for
     from .bus.config import client_config
 
     user, password = credentials_for(args.credentials, UI_USER)
@@ -394,7 +394,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
     try:
         zenoh.open(client_config(args.connect, **auth)).close()
     except zenoh.ZError as exc:
-        raise CliError(f"cannot connect to {', '.join(args.connect)}: {one_line(exc)}",
+        raise CliError(connect_failure(args.connect, one_line(exc), args.credentials),
                        code=1) from None
     try:
         app = QlapApp(connect=args.connect, run_id=args.run, **auth)
