@@ -386,7 +386,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
     from tui import QlapApp
 
     from .bus.auth import UI_USER
-    from .bus.cli import credentials_for
+    from .bus.cli import connect_failure, credentials_for
     from .bus.config import client_config
 
     user, password = credentials_for(args.credentials, UI_USER)
@@ -394,7 +394,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
     try:
         zenoh.open(client_config(args.connect, **auth)).close()
     except zenoh.ZError as exc:
-        raise CliError(f"cannot connect to {', '.join(args.connect)}: {one_line(exc)}",
+        raise CliError(connect_failure(args.connect, one_line(exc), args.credentials),
                        code=1) from None
     try:
         app = QlapApp(connect=args.connect, run_id=args.run, **auth)
@@ -842,7 +842,7 @@ def _cmd_actor(args: argparse.Namespace) -> int:
 
     from .agent_run import params_for_world
     from .bus import keys
-    from .bus.cli import client_from_args
+    from .bus.cli import client_from_args, connect_failure
     from .bus.config import BusConfigError
     from .placements.launcher import run_actor
     from .qlap import Params
@@ -864,13 +864,13 @@ def _cmd_actor(args: argparse.Namespace) -> int:
     finally:
         world.close()
     ctx = RunContext(args.run, args.world, args.steps, args.seed, params, out=args.out)
-    print(f"qlap actor {args.name}: run {args.run} via {', '.join(args.connect)}; it starts "
-          "once every actor of the run has joined (up to an hour; Ctrl-C to stop)",
-          file=sys.stderr, flush=True)
+    print(f"qlap actor {args.name}: run {args.run}, connecting to {', '.join(args.connect)}; "
+          "then it waits until every actor of the run has joined (up to an hour; Ctrl-C to "
+          "stop)", file=sys.stderr, flush=True)
     try:
         result = run_actor(args.name, ctx, config)
     except zenoh.ZError as exc:
-        print(f"qlap actor: cannot connect to {', '.join(args.connect)}: {exc}",
+        print(f"qlap actor: {connect_failure(args.connect, one_line(exc), args.credentials)}",
               file=sys.stderr)
         return 1
     except KeyboardInterrupt:
@@ -1007,11 +1007,15 @@ def pretty(text: str) -> str:
 
 def format_knowledge(k: dict, show_all: bool = False, limit: int | None = None) -> str:
     """Knowledge grouped by action (Tables 8.2–8.6), landmarks first."""
-    lines = [f"step {k['step']}, window k = {k['k']}", "", "landmarks:"]
+    lines = [f"after {k['step'] + 1:,} steps (t = {k['step']}), window k = {k['k']}", "",
+             "landmarks learned (beside the initial ones of Table 3.1):"]
+    n_lines = len(lines)
     for name, lms in k["landmarks"].items():
         learned = [m["label"] for m in lms if m["source"] != "initial"]
         if learned:
             lines.append(f"  {pretty(name):10s} {', '.join(learned)}")
+    if len(lines) == n_lines:
+        lines.append("  none yet")
     dbns = {d["id"]: d for d in k["dbns"]}
     actions = sorted(k.get("actions", []), key=lambda a: (-a["reliability"], a["label"]))
     lines += ["", f"actions with plans ({sum(1 for a in actions if a['plans'])}):"]

@@ -88,10 +88,13 @@ def main() -> None:
                              clock="realtime", hz=args.hz)
             s = placements[name](ctx)
             batches = sum(a.get("batches", 0) for a in s["actors"].values())
+            world = s["actors"].get("world", {})
             print(f"  {name:10s} late ticks {s.get('late_ticks')}, missed ticks "
                   f"{s.get('missed_ticks')}, lateness p50 {s.get('lateness_p50_ms')} ms, p99 "
                   f"{s.get('lateness_p99_ms')} ms, max {s.get('lateness_max_ms')} ms "
-                  f"({batches} batches computed)", flush=True)
+                  f"({batches} batches computed; full garbage collections at the end "
+                  f"{world.get('full_collections')}, {world.get('gc_collected')} objects freed)",
+                  flush=True)
 
 
 if __name__ == "__main__":

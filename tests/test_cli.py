@@ -23,7 +23,7 @@ def test_run_headless_writes_knowledge_summary_and_checkpoint(tmp_path):
     assert knowledge["step"] == 9999
     assert len(knowledge["dbns"]) == summary["dbns"] > 0
     assert (out / "checkpoints" / "step-0010000" / "learner.json").exists()
-    assert "landmarks:" in r.stdout
+    assert "landmarks learned" in r.stdout
 
 
 def test_bad_world_and_bad_flags_give_clear_errors():
@@ -51,7 +51,7 @@ def test_show_and_eval_on_a_run(tmp_path):
     assert r.returncode == 0, r.stderr
     r = qlap("show", str(out))
     assert r.returncode == 0, r.stderr
-    assert "landmarks:" in r.stdout
+    assert "landmarks learned" in r.stdout
     assert "actions with plans" in r.stdout
     r = qlap("show", str(out / "checkpoints" / "final"))
     assert r.returncode == 0, r.stderr

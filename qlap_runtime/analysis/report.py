@@ -249,8 +249,10 @@ def format_report(figures: Sequence[dict[str, Any]], labels: Sequence[str]) -> s
         row(f"rel {pretty(key)} ({ra.source})", f"{ra.rel:.2f}",
             f"≥ {ra.target:.2f}, a plan", cells,
             f"{_num(_mean([a['rel'] for a in acts]), '{:.2f}')}, plan {planned}/{len(acts)}")
-    steps = [_num(f["step"]) for f in figures]
-    lines = [f"knowledge at step {', '.join(steps)}", "", _table(header, rows)]
+    # knowledge.json's step is the index t of the last step (0-based): t + 1 steps were done,
+    # the N of the step-N checkpoint and of the UI's count
+    steps = [_num(None if f["step"] is None else f["step"] + 1, "{:,}") for f in figures]
+    lines = [f"knowledge after {', '.join(steps)} steps", "", _table(header, rows)]
 
     variables = list(dict.fromkeys([*(v for v in ref.LANDMARKS_TABLE_8_1
                                        if any(v in f["landmarks"] for f in figures)),

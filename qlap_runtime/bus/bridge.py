@@ -513,8 +513,6 @@ class Publisher:
         """Payloads :meth:`hold` kept for other sessions until :meth:`flush`."""
         self.held_bytes = 0
         """Their size (a bundle over Zenoh's 64 KiB batch is fragmented, which costs)."""
-        self._held_binary = False
-        """Whether a held payload is binary (then the bundle is :data:`FRAMED`)."""
         self.bundles = 0
         """Zenoh puts of several held messages (:meth:`flush`)."""
         self._sender: Sender | None = None
@@ -553,8 +551,6 @@ class Publisher:
             sub.deliver(self.key, payload, msg)
         self._held.append(payload)
         self.held_bytes += len(payload)
-        if payload[:3] == MAGIC:
-            self._held_binary = True
         return True
 
     @property
@@ -569,9 +565,10 @@ class Publisher:
         goes on while Zenoh blocks (congestion control BLOCK towards a reader that is behind;
         the put releases the GIL; docs/decisions.md 96); ``wait=True`` returns once every
         sample held or handed to the thread is on Zenoh."""
-        held, binary = self._held, self._held_binary
+        held = self._held
         if held:
-            self._held, self.held_bytes, self._held_binary = [], 0, False
+            self._held, self.held_bytes = [], 0
+            binary = any(p[:3] == MAGIC for p in held)   # a record: FRAMED, not newlines
             if not self._remote_now():
                 self.skipped += len(held)
             else:

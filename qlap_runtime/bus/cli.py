@@ -26,6 +26,7 @@ import trio
 import zenoh
 
 from ..argtypes import non_negative_float, positive_float
+from ..errors import one_line
 from .auth import VIEWER
 from .config import BusConfigError, TlsFiles, client_config, config_from_file, router_config
 
@@ -121,14 +122,20 @@ def _expected(exc: BaseException) -> BaseException | None:
 
 def _describe(exc: BaseException, args: argparse.Namespace) -> str:
     """One line: 'cannot connect to ENDPOINTS: …' for Zenoh, 'FILE: reason' for a file."""
-    import re
-
-    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
-        return f"{exc.filename}: {exc.strerror}"
-    text = " ".join(re.sub(r"\s+at \S+\.rs:\d+\.?\s*$", "", str(exc).strip()).split())
+    text = one_line(exc)
     if isinstance(exc, zenoh.ZError) and getattr(args, "connect", None):
-        return f"cannot connect to {', '.join(args.connect)}: {text}"
+        return connect_failure(args.connect, text, getattr(args, "credentials", None))
     return text
+
+
+def connect_failure(endpoints: list[str], reason: str, credentials: Path | None) -> str:
+    """'cannot connect to ENDPOINTS: reason', with a hint when no credentials were given at
+    all: every endpoint a run opens requires them (docs/security.md)."""
+    from .auth import credentials_from_env
+
+    hint = "" if credentials is not None or credentials_from_env(None) is not None else \
+        " (an endpoint a run opens needs --credentials RUN_DIR/bus-credentials.json)"
+    return f"cannot connect to {', '.join(endpoints)}: {reason}{hint}"
 
 
 def client_from_args(args: argparse.Namespace) -> zenoh.Config:

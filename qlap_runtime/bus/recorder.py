@@ -155,6 +155,16 @@ class _Run:
         return run_metadata(self.run_id, info, start_ns=self.start_ns)
 
 
+def as_json(msg: Any, payload: bytes) -> tuple[Any, bytes]:
+    """A received message and its payload as JSON: a ``qstate`` record becomes its JSON
+    message (recordings and ``echo`` stay JSON, docs/decisions.md 98); others are as they
+    came."""
+    if isinstance(msg, QRecord):
+        msg = msg.to_qstate()
+        return msg, encode(msg)
+    return msg, payload
+
+
 class McapSink:
     """An MCAP writer with one schema per message type, one channel per (run, topic), a
     ``qlap.run`` metadata record per run and the world's scene (see the module docstring).
@@ -202,11 +212,8 @@ class McapSink:
                 topic=mcap_topic(topic), message_encoding=MessageEncoding.JSON,
                 schema_id=self._schemas[cls], metadata={"run_id": run_id, "key": r.key})
             run.channels[topic] = cid
-        msg = r.msg if r.msg is not None else decode(r.key, r.payload)
-        payload = r.payload
-        if isinstance(msg, QRecord):            # recorded as its JSON message (decision 98)
-            msg = msg.to_qstate()
-            payload = encode(msg)
+        msg, payload = as_json(r.msg if r.msg is not None else decode(r.key, r.payload),
+                               r.payload)
         self._add(cid, r.recv_ns, payload)
         if isinstance(msg, Sense):
             self._scene(run, msg, r.recv_ns)
@@ -378,9 +385,7 @@ async def echo(source: Source, key_expr: str, stop_event: trio.Event, *,
             nursery.start_soon(stop)
             async for batch in sub:
                 for r in batch:
-                    payload = encode(r.msg.to_qstate()) if isinstance(r.msg, QRecord) \
-                        else r.payload                  # a record as JSON (decision 98)
-                    text = payload.decode("utf-8", "backslashreplace")
+                    text = as_json(r.msg, r.payload)[1].decode("utf-8", "backslashreplace")
                     out.write(f"{r.key} {text}\n")
                     n += 1
                     if limit is not None and n >= limit:
