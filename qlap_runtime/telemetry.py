@@ -151,10 +151,13 @@ def iac_msgs(agent: Any, after_step: int) -> list[IACChoice]:
     The agent's log keeps only the probabilities of the applicable actions, in order, not their
     names, so ``weights`` is keyed ``#0, #1, ...`` in that order.
     """
-    out = []
-    for c in agent.iac_log:
+    new = []
+    for c in reversed(agent.iac_log):   # the steps only grow: stop at the first one seen
         if c.step <= after_step:
-            continue
+            break
+        new.append(c)
+    out = []
+    for c in reversed(new):
         label = _action_label(agent, c.action) if c.action is not None else ""
         out.append(IACChoice(int(c.step), label, _finite(c.weight, 0.0), int(c.n_applicable),
                              bool(c.babbling),

@@ -13,6 +13,7 @@ records the delay until the consequent occurs while the motor value still holds.
 
 from __future__ import annotations
 
+import copy
 from collections import deque
 
 import numpy as np
@@ -186,6 +187,23 @@ class WindowLearner:
         self.history = history
         self.first_step: int | None = None
         self.last_step = -1
+
+    def __deepcopy__(self, memo: dict) -> WindowLearner:
+        """What ``copy.deepcopy`` gives (a batch's copy of the learner), without a call per
+        count: the histograms and times are lists and deques of ints (decision 101)."""
+        c = object.__new__(type(self))
+        memo[id(self)] = c
+        state = c.__dict__
+        for k, v in self.__dict__.items():
+            if k == "delays":
+                state[k] = {key: list(counts) for key, counts in v.items()}
+            elif k == "cons_times":
+                state[k] = {key: deque(times, times.maxlen) for key, times in v.items()}
+            elif k == "trials":
+                state[k] = dict(v)
+            else:
+                state[k] = copy.deepcopy(v, memo)
+        return c
 
     def update(self, step: int, motor_events: list[tuple[int, int]],
                cons_events: list[tuple[int, int]]) -> None:

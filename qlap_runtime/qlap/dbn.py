@@ -10,6 +10,7 @@ be re-evaluated under any discretisation.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,6 +69,10 @@ def model_stats(s: np.ndarray, f: np.ndarray, n_context: int, params: Params) ->
     return out
 
 
+_ATOMS = frozenset({int, float, bool, str, type(None)})
+"""Immutable values a :class:`DBN`'s deep copy keeps as they are."""
+
+
 class DBN:
     """One change or magnitude DBN (its structure, CPT and activation store)."""
 
@@ -94,6 +99,22 @@ class DBN:
         self.cpt_f = np.zeros(1)
         # Change DBNs: open activations (step, x); magnitude DBNs: at most one.
         self.pending: list[tuple[int, np.ndarray]] = []
+
+    def __deepcopy__(self, memo: dict) -> DBN:
+        """What ``copy.deepcopy`` would give (a batch's copy of a learner holds hundreds of
+        DBNs), without its reduce-and-rebuild per object: numbers, strings and tuples of ints
+        are kept, everything else is deep-copied with the same ``memo``, so arrays and
+        pending entries shared with the learner stay shared in the copy (decision 101)."""
+        c = object.__new__(type(self))
+        memo[id(self)] = c
+        state = c.__dict__
+        for k, v in self.__dict__.items():
+            t = type(v)
+            if t in _ATOMS or (t is tuple and all(type(x) is int for x in v)):
+                state[k] = v
+            else:
+                state[k] = copy.deepcopy(v, memo)
+        return c
 
     # -- activations --------------------------------------------------------------------------
     def record(self, x: np.ndarray, success: bool, cell: int) -> None:

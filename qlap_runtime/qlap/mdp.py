@@ -295,6 +295,14 @@ class MDPAction:
         elif self.var < 0 or self.value < 0:
             raise ValueError(f"a(v, q) needs v, q >= 0, got a({self.var}, {self.value})")
 
+    # Frozen, of ints and an enum: a copy (the executor's periodic checkpoint copies the
+    # agent, hundreds of these) is the action itself (docs/decisions.md 101).
+    def __copy__(self) -> MDPAction:
+        return self
+
+    def __deepcopy__(self, memo: dict) -> MDPAction:
+        return self
+
     @classmethod
     def wait(cls) -> MDPAction:
         """The wait action of magnitude plans (§5.3.1)."""

@@ -59,6 +59,14 @@ class Event(NamedTuple):
     value: int
     direction: int = 0
 
+    # Immutable: a copy (e.g. a batch's deep copy of a learner, whose DBNs, indexes and pairs
+    # hold thousands of events) is the event itself (docs/decisions.md 101).
+    def __copy__(self) -> Event:
+        return self
+
+    def __deepcopy__(self, memo: dict) -> Event:
+        return self
+
 
 @dataclass
 class VariableTable:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
@@ -211,3 +212,36 @@ def test_cell_of_from_the_step_values_is_the_cell_of_the_real_values(learned: Mo
                 assert got == want
                 checked += got >= 0
     assert checked > 100
+
+
+def test_a_deep_copy_of_a_learner_goes_on_like_the_learner():
+    """DBN and Event copies take a shortcut (docs/decisions.md 101): the copy shares no DBN
+    or array with the learner, keeps its own internal sharing, and — fed the same stream as
+    the learner it came from — learns exactly what that learner learns."""
+    params = Params(batch_lag=500)
+    stream = list(babble_stream(14_000, 1))
+    straight = ModelLearner(SPECS, params)
+    for t, obs in stream[:9000]:
+        straight.observe(t, obs)
+    work = copy.deepcopy(straight)      # what batch_copy does, its pending deltas kept
+    assert work.dbns and set(work.dbns) == set(straight.dbns)
+    for i, d in straight.dbns.items():
+        c = work.dbns[i]
+        assert c is not d and type(c) is type(d)
+        assert set(vars(c)) == set(vars(d))
+        for k, v in vars(d).items():
+            if isinstance(v, np.ndarray):
+                assert vars(c)[k] is not v
+                np.testing.assert_array_equal(vars(c)[k], v)
+        assert c.antecedent == d.antecedent and c.context == d.context
+    for dbns in work._by_antecedent.values():
+        assert all(work.dbns[d.id] is d for d in dbns)
+    for _, dbn, _entry in work._expiry:
+        assert work.dbns.get(dbn.id) is dbn
+    for t, obs in stream[9000:]:
+        straight.observe(t, obs)
+        work.observe(t, obs)
+    assert json.dumps(work.knowledge()) == json.dumps(straight.knowledge())
+    for i, d in straight.dbns.items():
+        np.testing.assert_array_equal(work.dbns[i].cpt_s, d.cpt_s)
+        np.testing.assert_array_equal(work.dbns[i].act_x, d.act_x)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
@@ -725,3 +726,12 @@ def test_greedy_action_chooses_and_draws_as_the_numpy_version() -> None:
         for s in range(q.shape[0]):
             assert greedy_action(q, s, a, eps) == _greedy_action_numpy(q, s, b, eps)
         assert a.random() == b.random()
+
+
+def test_an_mdp_action_and_an_event_are_their_own_copies():
+    """Both immutable: a copy of a plan or a learner keeps them (docs/decisions.md 101)."""
+    a, e = MDPAction(3, 1, Role.ANTECEDENT), Event(2, 4, 1)
+    assert copy.copy(a) is a and copy.deepcopy(a) is a and copy.deepcopy([a, a])[1] is a
+    assert copy.copy(e) is e and copy.deepcopy({e: [e]}) == {e: [e]}
+    with pytest.raises(AttributeError):
+        a.var = 4                               # frozen

@@ -120,3 +120,13 @@ def test_the_world_view_holds_one_step_and_the_status_counts_from_minus_one():
             assert w.qualitative[name] == space.label(space.value_of(value))
         checked += 1
     assert checked == 12
+
+
+def test_iac_msgs_after_any_step_are_those_of_a_full_scan(trained):
+    """The choices after a step, found from the newest back (the display's 10 Hz scan)."""
+    agent, _ = trained
+    steps = [c.step for c in agent.iac_log]
+    assert len(steps) >= 3 and steps == sorted(steps)
+    for after in (-1, steps[0] - 1, steps[0], steps[len(steps) // 2], steps[-2], steps[-1]):
+        msgs = telemetry.iac_msgs(agent, after)
+        assert [m.step for m in msgs] == [s for s in steps if s > after]
