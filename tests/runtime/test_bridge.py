@@ -209,6 +209,29 @@ async def test_a_session_that_subscribes_mid_run_gets_the_lockstep_messages_from
         assert pub.skipped == 4
 
 
+async def test_a_stale_no_from_the_matching_listener_is_corrected_once(two_clients, run_id):
+    """The listener's False can lag zenoh's routing (or never change, for a subscription
+    declared first); zenoh's own status then says yes, and the publisher keeps that answer
+    instead of asking zenoh again at every put (the step chain asked at every qstate)."""
+    here, there = two_clients
+    key = keys.key(run_id, "qstate")
+    got: list[int] = []
+    handle = there.declare_subscriber(
+        key, lambda s: got.append(decode(str(s.key_expr), s.payload.to_bytes()).step))
+    with Publisher(here, run_id, "qstate") as pub:
+        with trio.fail_after(10):
+            while not pub.matched:  # noqa: ASYNC110 - zenoh's routing
+                await trio.sleep(0.01)
+        pub.remote = False                      # the listener's stale answer
+        pub.put(QState(0, {}, (), {}))
+        assert pub.remote and pub.skipped == 0  # asked once, kept
+        with trio.fail_after(10):
+            while not got:  # noqa: ASYNC110 - a zenoh callback appends
+                await trio.sleep(0.01)
+        assert got == [0]
+    handle.undeclare()
+
+
 async def test_other_sessions_get_a_locally_handed_message_once(two_clients, run_id):
     here, there = two_clients
     key = keys.key(run_id, "sense")
