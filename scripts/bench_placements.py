@@ -9,11 +9,13 @@ all learned the same thing.
 
 Usage: scripts/bench_placements.py [--world core] [--steps 6000] [--lag 500] [--babble 3000]
                                    [--groups two,each] [--local] [--only embedded,processes]
+                                   [--pairs N]
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import sys
 import tempfile
 import time
@@ -27,12 +29,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> None:
-    import worlds
-    from qlap_runtime.agent_run import knowledge_json, params_for_world, run_agent
-    from qlap_runtime.placements.launcher import run_embedded, run_processes
-    from qlap_runtime.qlap import Params
-    from qlap_runtime.runtime.context import RunContext
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--world", default="core")
     ap.add_argument("--steps", type=int, default=6000)
@@ -46,7 +42,35 @@ def main() -> None:
                     help="also the terminal UI's local runner (tui/driver.py)")
     ap.add_argument("--only", default="embedded,processes",
                     help="the actor placements to run, comma-separated")
+    ap.add_argument("--pairs", type=int, default=1,
+                    help="rounds of the synchronous loop and every placement, one after the "
+                         "other; each placement's ratio is to its round's sync run, and with "
+                         "several rounds the median and range of the ratios close the output "
+                         "(a 2-core machine's noise moves one pair by 10-30%%)")
     args = ap.parse_args()
+    if args.pairs < 1:
+        ap.error(f"--pairs must be at least 1, got {args.pairs}")
+    ratios: dict[str, list[float]] = {}
+    for round_ in range(args.pairs):
+        if args.pairs > 1:
+            print(f"round {round_ + 1} of {args.pairs}:")
+        for name, ratio in one_round(args).items():
+            ratios.setdefault(name, []).append(ratio)
+    if args.pairs > 1:
+        print(f"wall / sync over {args.pairs} rounds:")
+        for name, rs in ratios.items():
+            print(f"  {name:15s} median {statistics.median(rs):.2f}  range "
+                  f"{min(rs):.2f}-{max(rs):.2f}  ({', '.join(f'{r:.2f}' for r in rs)})")
+
+
+def one_round(args: argparse.Namespace) -> dict[str, float]:
+    """The synchronous loop, then each placement: their wall / sync ratios."""
+    import worlds
+    from qlap_runtime.agent_run import knowledge_json, params_for_world, run_agent
+    from qlap_runtime.placements.launcher import run_embedded, run_processes
+    from qlap_runtime.qlap import Params
+    from qlap_runtime.runtime.context import RunContext
+
     only = set(args.only.split(",")) - {""}
     world = worlds.make(args.world)
     params = params_for_world(world, Params(babble_steps=args.babble, batch_lag=args.lag))
@@ -58,7 +82,8 @@ def main() -> None:
     print(f"{args.world}, {args.steps} steps, lag {args.lag}, babbling {args.babble}:")
     sync_wall = wall
     print(f"  {'sync':15s} {args.steps / wall:8,.0f} steps/s  wall {wall:.1f} s  "
-          f"CPU {cpu:.2f} s")
+          f"CPU {cpu:.2f} s", flush=True)
+    ratios: dict[str, float] = {}
     runs: list[tuple[str, Any]] = [("embedded", run_embedded)] if "embedded" in only else []
     layouts = [g for g in args.groups.split(",") if g and g != "none"] \
         if "processes" in only else []
@@ -71,11 +96,12 @@ def main() -> None:
                           params, out=out))
         same = (out / "knowledge.json").read_text() == reference
         loop_wall = args.steps / s["loop_steps_per_s"]
+        ratios[name] = loop_wall / sync_wall
         print(f"  {name:15s} {s['loop_steps_per_s']:8,.0f} steps/s (start-up excluded; "
               f"{s['steps_per_s']:,.0f} with it)  wall / sync {loop_wall / sync_wall:.2f}  "
               f"waits {s['waits']} ({s['actors']['executor'].get('wait_s', 0):.2f} s)  "
               f"chain CPU {s['actors']['world'].get('loop_cpu_s', 0):.2f} s  "
-              f"identical knowledge: {same}")
+              f"identical knowledge: {same}", flush=True)
     if args.local:
         from tui.driver import LocalDriver
 
@@ -91,8 +117,10 @@ def main() -> None:
         d.stop()
         world.close()
         same = (out / "knowledge.json").read_text() == reference
+        ratios["local"] = wall / sync_wall
         print(f"  {'local':15s} {args.steps / wall:8,.0f} steps/s (start-up included)  "
-              f"wall / sync {wall / sync_wall:.2f}  identical knowledge: {same}")
+              f"wall / sync {wall / sync_wall:.2f}  identical knowledge: {same}", flush=True)
+    return ratios
 
 
 if __name__ == "__main__":
