@@ -37,14 +37,20 @@ def run_process(proc: DriverProcess) -> DriverProcess:
     UI here connected to it on loopback; quitting the UI stops the agent."""
     if proc.exitcode is None and not proc.alive:
         proc.start()
+    app = QlapApp(connect=proc.endpoint, run_id=proc.run_id, **proc.client)
     try:
-        QlapApp(connect=proc.endpoint, run_id=proc.run_id, **proc.client).run()
+        app.run()
     finally:
-        if proc.alive:                  # quit mid-run: the agent saves first (seconds)
+        if proc.alive and not run_finished(app):    # quit mid-run: the agent saves first
             print("stopping the agent: it writes its final checkpoint and outputs …",
                   flush=True)
         proc.stop()
     return proc
+
+
+def run_finished(app: QlapApp) -> bool:
+    """Whether the UI saw the run finish (its last status said so): its outputs are written."""
+    return app.status is not None and app.status.finished
 
 
 def attach(connect: Sequence[str] | str, run_id: str | None = None, **client: Any) -> None:

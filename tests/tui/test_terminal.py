@@ -154,5 +154,27 @@ def test_qlap_run_in_a_terminal_opens_the_ui_runs_the_agent_and_quits_on_q(tmp_p
         assert code == 0, f"`qlap run` exited with code {code}:\n{term.tail()}"
         assert "Traceback" not in after_quit, term.tail()
         assert "did not start" not in after_quit, term.tail()
+        assert "stopping the agent" in after_quit, term.tail()   # quit mid-run: it saves
+    finally:
+        term.close()
+
+
+@pytest.mark.timeout(START_TIMEOUT + EXIT_TIMEOUT + 60)
+def test_quitting_a_finished_run_says_nothing_about_stopping_it(tmp_path):
+    argv = [*_qlap_command(), "run", "--world", "core2d", "--steps", "200"]
+    term = Terminal(argv, cwd=tmp_path, columns=COLUMNS, rows=ROWS)
+    try:
+        deadline = time.monotonic() + START_TIMEOUT
+        while "FINISHED" not in term.text():
+            assert term.proc.poll() is None, term.tail()
+            assert time.monotonic() < deadline, f"no FINISHED:\n{term.tail()}"
+            time.sleep(0.2)
+        time.sleep(1.0)                         # the UI's status of the last step
+        term.send(b"q")
+        code = term.proc.wait(EXIT_TIMEOUT)
+        term._reader.join(5)
+        text = term.text()
+        assert code == 0, term.tail()
+        assert "wrote " in text and "stopping the agent" not in text, term.tail()
     finally:
         term.close()
