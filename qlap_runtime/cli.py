@@ -41,6 +41,14 @@ def _version() -> str:
         return __version__
 
 
+def path_arg(text: str) -> Path:
+    """A path given on the command line; an empty one is refused (``Path('')`` is the current
+    directory, which a user who typed ``--out ''`` did not mean)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path")
+    return Path(text)
+
+
 def endpoint_arg(text: str) -> str:
     """A Zenoh endpoint ``PROTOCOL/HOST:PORT``, checked before the run starts."""
     from .bus.config import BusConfigError, validate_endpoint
@@ -88,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=count, default=None,
                      help="random seed (default: 0; with --resume, the checkpoint's, which a "
                           "different --seed cannot change)")
-    run.add_argument("--out", type=Path, default=None,
+    run.add_argument("--out", type=path_arg, default=None,
                      help="run directory for checkpoints, metrics.jsonl, knowledge.json, "
                           "summary.json (default: runs/WORLD-YYYYmmdd-HHMMSS-sSEED/)")
     run.add_argument("--keep-checkpoints", type=count, default=None, metavar="N",
@@ -127,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "subscribers (qlap tui/record/echo --connect) can attach "
                           "(embedded placement and the terminal UI); they authenticate with "
                           "<out>/bus-credentials.json, written for the run")
-    run.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
+    run.add_argument("--record", type=path_arg, default=None, metavar="FILE.mcap",
                      help="record every bus message of the run to an MCAP file "
                           "(embedded and processes placements)")
     run.add_argument("--lag", type=int, default=None,
@@ -137,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "processes, 0 for sync)")
     run.add_argument("--babble-steps", type=int, default=None,
                      help="length of the initial motor-babbling period (default: 20000, §6.1)")
-    run.add_argument("--resume", type=Path, default=None,
+    run.add_argument("--resume", type=path_arg, default=None,
                      help="continue from an agent checkpoint directory into a new run "
                           "directory: a lockstep checkpoint of any placement, in any "
                           "placement, exactly; a realtime one only in sync, inexactly; "
@@ -149,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Print the knowledge of a run directory (its "
                                       "knowledge.json) or of a checkpoint directory, grouped "
                                       "by action like Tables 8.2–8.6.")
-    show.add_argument("path", type=Path, help="run directory or checkpoint directory")
+    show.add_argument("path", type=path_arg, help="run directory or checkpoint directory")
     show.add_argument("--all", action="store_true",
                       help="also list DBNs that are not plans")
 
@@ -158,7 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "300 steps, −0.01 a step and +9.99 on success, the agent "
                                     "in goal mode with learning off. Prints the mean reward "
                                     "with its standard error and the success rate.")
-    ev.add_argument("--checkpoint", type=Path, default=None,
+    ev.add_argument("--checkpoint", type=path_arg, default=None,
                     help="agent checkpoint directory (not needed with --policy random)")
     ev.add_argument("--world", default=None,
                     help="world spec (default: the world the checkpoint records, else core)")
@@ -185,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "against steps with standard-error bars, the random policy dashed; several "
                     "runs: their mean and the standard error across them, as Figs. 7.2–7.4). "
                     "See docs/analysis.md.")
-    curve.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
+    curve.add_argument("runs", nargs="+", type=path_arg, metavar="RUN_DIR",
                        help="run directories written by `qlap run --out` (several: seeds, "
                             "drawn as their mean)")
     curve.add_argument("--task", required=True,
@@ -197,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     curve.add_argument("--seed", type=count, default=0,
                        help="seed of the trials, the same set-ups for every checkpoint "
                             "(default: 0)")
-    curve.add_argument("--out", type=Path, default=None,
+    curve.add_argument("--out", type=path_arg, default=None,
                        help="where curve.csv and curve.png go (default: RUN_DIR; required "
                             "with several runs)")
     curve.add_argument("--world", default=None,
@@ -218,7 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "verdict 'change DBNs ≤ 600 and not growing after 150k', and each run's "
                     "speed (summary.json steps_per_s). Several runs: one column each and the "
                     "mean. See docs/analysis.md.")
-    report.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
+    report.add_argument("runs", nargs="+", type=path_arg, metavar="RUN_DIR",
                         help="run directories (or agent checkpoint directories)")
     report.add_argument("--json", action="store_true",
                         help="print the figures as JSON (reference, runs, mean)")
@@ -230,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "actions, IAC choices and babbling, steps/s) and, if the run has a "
                     "curve.csv (qlap curve), its learning curve, into RUN_DIR/metrics.png "
                     "(docs/outputs.md).")
-    plot.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
+    plot.add_argument("runs", nargs="+", type=path_arg, metavar="RUN_DIR",
                       help="run directories written by `qlap run`")
 
     snap = sub.add_parser("snapshot", help="render a world to a PNG (MuJoCo offscreen)",
@@ -269,7 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
     actor.add_argument("--babble-steps", type=count, default=None,
                        help="length of the initial motor-babbling period (default: 20000, "
                             "§6.1)")
-    actor.add_argument("--out", type=Path, default=None,
+    actor.add_argument("--out", type=path_arg, default=None,
                        help="(executor) where to write knowledge.json, checkpoints")
 
     tui_p = sub.add_parser("tui", help="attach the terminal UI to a running agent",
@@ -278,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     tui_p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT",
                        help="endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
     tui_p.add_argument("--run", default=None, help="run id (default: the first one heard)")
-    tui_p.add_argument("--credentials", type=Path, default=None, metavar="FILE",
+    tui_p.add_argument("--credentials", type=path_arg, default=None, metavar="FILE",
                        help="the run's bus-credentials.json (user tui; default: "
                             "$QLAP_CREDENTIALS)")
 
@@ -519,6 +527,18 @@ def _prepare_out(args: argparse.Namespace) -> Path | None:
     return out
 
 
+def lag_problem(lag: int) -> str | None:
+    """Why ``--lag`` cannot be ``lag`` (one line), or None: a batch's delta is applied before
+    the next batch starts, so 0 <= L < the DBN batch period (Algorithm 2)."""
+    from .qlap import Params
+
+    period = Params().dbn_period
+    if 0 <= lag < period:
+        return None
+    return (f"--lag {lag}: must be in [0, {period}) — a batch's delta is applied before the "
+            f"next batch, every {period} steps, starts")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     try:
         return _cmd_run_inner(args)
@@ -564,6 +584,10 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
         return 2
     if args.lag is None:
         args.lag = 0 if args.placement == "sync" or tui else DEFAULT_ACTOR_LAG
+    if (problem := lag_problem(args.lag)) is not None:
+        print(f"qlap run: {problem}", file=sys.stderr)
+        world.close()
+        return 2
     try:
         changes = {"batch_lag": args.lag}
         if args.babble_steps is not None:
@@ -851,6 +875,10 @@ def _cmd_actor(args: argparse.Namespace) -> int:
     world = _make_world(args.world, "actor")
     if world is None:
         return 2
+    if (problem := lag_problem(args.lag)) is not None:
+        print(f"qlap actor: {problem}", file=sys.stderr)
+        world.close()
+        return 2
     try:
         keys.validate_run_id(args.run)
         changes = {"batch_lag": args.lag}
@@ -949,13 +977,14 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     else:
         pursued = f", pursuing {res['pursued']}" if "pursued" in res else ""
         print(f"{res['world']} {res['task']} ({res['policy']}{pursued}, "
-              f"{res['n_trials']} trials): "
+              f"{res['n_trials']} trial{'' if res['n_trials'] == 1 else 's'}): "
               f"mean reward {res['mean_reward']:.3f} ± {res['stderr_reward']:.3f} (s.e.), "
               f"success rate {res['success_rate']:.2f}")
         goals = res.get("by_goal", {})
         if len(goals) > 1:              # a task that draws its goal: each goal's trials
             for name, g in goals.items():
-                print(f"  {name:12s} {g['trials']:4d} trials: mean reward "
+                trials = "trial " if g["trials"] == 1 else "trials"
+                print(f"  {name:12s} {g['trials']:4d} {trials}: mean reward "
                       f"{g['mean_reward']:.3f}, {g['successes']} reached, {g['failures']} "
                       f"ended early, {g['timeouts']} timed out")
     return 0

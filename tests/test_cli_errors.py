@@ -280,3 +280,51 @@ def test_the_groups_layouts():
     assert parse_groups("world+perception+executor+planner,contingency+landmarks") \
         == LAYOUTS["two"]
     assert sorted(a for g in LAYOUTS["two"] for a in g) == sorted(ACTORS)
+
+
+@pytest.mark.parametrize("lag", ["-3", "2000", "100000"])
+def test_a_lag_outside_the_batch_period_names_the_flag_and_the_bound(capsys, tmp_path, lag):
+    code, _, err = qlap(capsys, "run", "--headless", "--world", "core2d", "--steps", "10",
+                        "--lag", lag, "--out", str(tmp_path / "r"))
+    line = assert_one_line(code, err, f"--lag {lag}", "[0, 2000)")
+    assert "Params" not in line and code == 2
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("argv", [("run", "--headless", "--steps", "10", "--out", ""),
+                                  ("show", "")])
+def test_an_empty_path_is_refused(argv):
+    r = qlap_process(*argv)          # --out '' was the current directory
+    assert r.returncode == 2
+    assert_one_line(r.returncode, r.stderr, "an empty path", f"qlap {argv[0]} --help")
+
+
+def test_a_file_or_a_run_directory_given_for_a_checkpoint(capsys, tmp_path):
+    note = tmp_path / "notes.txt"
+    note.write_text("not a checkpoint")
+    run_dir = tmp_path / "runs" / "s1"
+    (run_dir / "checkpoints").mkdir(parents=True)
+    code, _, err = qlap(capsys, "run", "--headless", "--world", "core2d", "--steps", "10",
+                        "--resume", str(note), "--out", str(tmp_path / "r1"))
+    assert code == 2
+    assert_one_line(code, err, "--resume", "a file, not a checkpoint directory")
+    code, _, err = qlap(capsys, "eval", "--checkpoint", str(run_dir), "--world", "core2d",
+                        "--task", "move_block", "--trials", "1")
+    line = assert_one_line(code, err, "is a run directory")
+    assert code == 2 and str(run_dir / "checkpoints" / "final") in line
+
+
+@pytest.mark.parametrize(("knowledge", "problem"), [
+    ({}, "no field 'step'"),
+    ({"step": 5, "k": 3, "landmarks": "x", "dbns": [], "actions": []},
+     "'landmarks' is str, not dict"),
+    ({"step": 5, "k": 3, "landmarks": {}, "dbns": [7], "actions": []},
+     "an entry of 'dbns' is not an object"),
+])
+@pytest.mark.parametrize("command", ["show", "report"])
+def test_a_knowledge_file_of_the_wrong_shape_is_one_line(capsys, tmp_path, knowledge, problem,
+                                                         command):
+    (tmp_path / "knowledge.json").write_text(json.dumps(knowledge))
+    code, _, err = qlap(capsys, command, str(tmp_path))
+    assert code == 2
+    assert_one_line(code, err, "knowledge.json: not a run's knowledge", problem)

@@ -157,6 +157,29 @@ def run_world(run_dir: Path, checkpoints: list[Checkpoint], override: str | None
                         "summary.json naming one; give --world")
 
 
+KNOWLEDGE_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "step": int, "k": int, "landmarks": dict, "dbns": list, "actions": list}
+"""The fields of knowledge.json that ``qlap show`` and ``qlap report`` read (docs/outputs.md)."""
+
+
+def knowledge_problem(knowledge: dict[str, Any]) -> str | None:
+    """What is wrong with the shape of a ``knowledge.json`` object (a missing field, a field
+    of the wrong type, an entry that is not an object), or None."""
+    for name, kind in KNOWLEDGE_FIELDS.items():
+        if name not in knowledge:
+            return f"no field {name!r}"
+        value = knowledge[name]
+        if not isinstance(value, kind) or isinstance(value, bool):
+            return f"{name!r} is {type(value).__name__}, not {kind.__name__}"  # type: ignore[union-attr]
+    for name, lms in knowledge["landmarks"].items():
+        if not isinstance(lms, list) or not all(isinstance(m, dict) for m in lms):
+            return f"landmarks of {name!r} are not a list of objects"
+    for field in ("dbns", "actions"):
+        if not all(isinstance(d, dict) for d in knowledge[field]):
+            return f"an entry of {field!r} is not an object"
+    return None
+
+
 def load_knowledge(path: Path) -> dict[str, Any]:
     """The knowledge (docs/outputs.md) of a run directory or of an agent checkpoint.
 
@@ -166,10 +189,15 @@ def load_knowledge(path: Path) -> dict[str, Any]:
     from ..qlap.checkpoint import CheckpointError, load_agent
 
     path = _resolve(path)
+    if path.is_file() and path.name == "knowledge.json":
+        path = path.parent                  # the file itself: its run directory
     if (path / "knowledge.json").is_file():
         knowledge = _read_json(path / "knowledge.json")
         if knowledge is None:
             raise AnalysisError(f"{path / 'knowledge.json'}: not a JSON object")
+        problem = knowledge_problem(knowledge)
+        if problem:
+            raise AnalysisError(f"{path / 'knowledge.json'}: not a run's knowledge ({problem})")
         return knowledge
     target = path if (path / "agent.json").is_file() else None
     if target is None and (_resolve(path / "checkpoints" / "final") / "agent.json").is_file():

@@ -224,6 +224,17 @@ def resolve_checkpoint(path: str | Path) -> Path:
     return path
 
 
+def not_a_checkpoint(directory: Path) -> str | None:
+    """Why ``directory`` (resolved) cannot be a checkpoint at all — a file, or a run
+    directory given for one of its checkpoints — or None."""
+    if directory.is_file():
+        return f"{directory}: a file, not a checkpoint directory"
+    if (directory / "checkpoints").is_dir() and not (directory / "learner.json").exists():
+        return (f"{directory} is a run directory, not a checkpoint: give "
+                f"{directory / 'checkpoints' / 'final'} (or one of its step-… directories)")
+    return None
+
+
 def learner_state(learner: ModelLearner) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The learner's complete state as (JSON object, arrays)."""
     per_meta, per_arrays = learner.perception.to_state()
@@ -282,6 +293,9 @@ def read_checkpoint(directory: str | Path, name: str = "learner"
                     ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     directory = resolve_checkpoint(directory)
     jpath, npath = directory / f"{name}.json", directory / f"{name}.npz"
+    not_one = not_a_checkpoint(directory)
+    if not_one:
+        raise CheckpointError(not_one)
     try:
         meta = json.loads(jpath.read_text())
     except FileNotFoundError:
