@@ -169,9 +169,15 @@ def test_a_finished_run_shows_finished_stops_its_clock_and_takes_no_more_steps()
             await until(pilot, lambda: app.status is not None and app.status.finished)
             assert app.status.step + 1 == d.agent.step_count + 1 == 300
             wall = app.status.wall_s
+            notices: list[str] = []
+            notify = app.notify
+            app.notify = lambda message, **kw: (notices.append(message),  # type: ignore
+                                                notify(message, **kw))[1]
             await pilot.press("p")                 # the UI says so and sends nothing
             await pilot.press("s")
             await pilot.pause(0.5)
+            assert notices == ["the run finished at step 300: nothing to pause or resume",
+                               "the run finished at step 300: no more steps to take"]
             d.command("pause")                     # another viewer's pause: ignored too
             d.command("step", n=1)
             await until(pilot, lambda: "ignored" in app.status.message)
