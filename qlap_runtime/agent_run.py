@@ -156,7 +156,8 @@ def goal_index(agent: Agent, goal: Any) -> tuple[int, int]:
     return agent.set_goal(var, goal.value)
 
 
-def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None
+def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
+                counts: dict[str, int] | None = None
                 ) -> Callable[[Any, Mapping[str, float], Any, np.random.Generator],
                               Mapping[str, float]]:
     """The agent as a policy for ``worlds.evaluate.run_trials`` (§7.2.1), learning off.
@@ -171,6 +172,9 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None
     With ``pursue`` (a ``worlds.base.Goal``) the agent pursues that goal in every trial instead
     of the task's, while the task still judges the trial: how well one learned action would do
     the task (``qlap eval --goal``, docs/analysis.md).
+
+    ``counts`` (if given) counts the policy's ``steps`` and those ``without_plan``: the agent
+    had no plan for the goal and moved randomly (or held still) instead (§7.2.1).
     """
     if task_name not in world.tasks:
         raise ValueError(f"{world.name} has no task {task_name!r}; "
@@ -191,8 +195,12 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None
             state["goal"] = goal
             agent.set_goal(agent.table.index(goal.variable), goal.value, idle=idle)
         state["t"] += 1
-        return agent.step(int(state["t"]), obs,
-                          discontinuity=bool(getattr(w, "discontinuity", False)))
+        motor = agent.step(int(state["t"]), obs,
+                           discontinuity=bool(getattr(w, "discontinuity", False)))
+        if counts is not None:
+            counts["steps"] = counts.get("steps", 0) + 1
+            counts["without_plan"] = counts.get("without_plan", 0) + (agent.mode == "idle")
+        return motor
 
     return qlap_policy
 
@@ -205,7 +213,8 @@ def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, se
     unchanged (:func:`goal_policy`). A trial in which the agent has no plan for the goal moves
     randomly (or holds the motors at rest when the task says so, §7.9.1). With ``pursue`` (a
     ``worlds.base.Goal``, policy "qlap" only) the agent pursues that goal instead of the
-    task's; the result names it as ``pursued`` ("T_L.dot=+").
+    task's; the result names it as ``pursued`` ("T_L.dot=+"). ``steps_without_plan`` of
+    ``policy_steps`` (policy "qlap"): the steps in which the agent had no plan for its goal.
     """
     from worlds.evaluate import run_random_trials, run_trials
 
@@ -218,9 +227,12 @@ def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, se
         if pursue is not None:
             goal_index(agent, pursue)                   # an unknown goal: ValueError, now
             agent.clear_goal()
+        counts: dict[str, int] = {}
         res = run_trials(world, task_name, trials, seed,
-                         goal_policy(agent, world, task_name, pursue))
+                         goal_policy(agent, world, task_name, pursue, counts))
         agent.end_trial()                               # the last trial's Sarsa, undone
+        res["steps_without_plan"] = counts.get("without_plan", 0)
+        res["policy_steps"] = counts.get("steps", 0)
         if pursue is not None:
             res["pursued"] = f"{pursue.variable}={pursue.value}"
     else:

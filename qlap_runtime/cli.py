@@ -980,6 +980,13 @@ def _cmd_eval(args: argparse.Namespace) -> int:
               f"{res['n_trials']} trial{'' if res['n_trials'] == 1 else 's'}): "
               f"mean reward {res['mean_reward']:.3f} ± {res['stderr_reward']:.3f} (s.e.), "
               f"success rate {res['success_rate']:.2f}")
+        if res.get("policy_steps") and res["steps_without_plan"] == res["policy_steps"]:
+            goal = res.get("pursued", "the task's goal")
+            print(f"  note: the agent had no plan for {goal} in any step: it moved randomly "
+                  f"(or held still) in every trial, as a random policy would")
+        elif res.get("steps_without_plan"):
+            print(f"  without a plan for the goal: {res['steps_without_plan']:,} of "
+                  f"{res['policy_steps']:,} steps (moving randomly meanwhile)")
         goals = res.get("by_goal", {})
         if len(goals) > 1:              # a task that draws its goal: each goal's trials
             for name, g in goals.items():

@@ -260,6 +260,12 @@ def test_evaluation_can_pursue_another_goal_than_the_tasks(trained, tmp_path):
     assert same["rewards"] == own["rewards"] and same["pursued"] == "x.dot=+"
     # Pushing x down first: the trials end only once x rises after all (1.5 → 9.5 steps).
     assert own["mean_steps"] < 2 and down["mean_steps"] > 5 and down["pursued"] == "x.dot=-"
+    # Every step of the policy counted; with a plan for its goal the agent idles only at a
+    # trial's first step (its history just broken: no direction of change known yet).
+    assert own["policy_steps"] == round(own["mean_steps"] * 10)
+    assert own["steps_without_plan"] == 10
+    still = evaluate(tmp_path / "ck", ToyTaskWorld(), "x_up", 10, 3, pursue=Goal("x.dot", "0"))
+    assert still["steps_without_plan"] == still["policy_steps"] > 0     # no plan for [0]
     with pytest.raises(KeyError, match="unknown variable 'y.dot'"):
         evaluate(tmp_path / "ck", ToyTaskWorld(), "x_up", 2, 3, pursue=Goal("y.dot", "+"))
     with pytest.raises(ValueError, match="qlap policy"):
