@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
+from pathlib import Path
 
 
 def _integer_at_least(text: str, least: int, what: str) -> int:
@@ -26,7 +28,7 @@ def count(text: str) -> int:
     return _integer_at_least(text, 0, "a non-negative integer")
 
 
-def _float_in(text: str, what: str, ok) -> float:
+def _float_in(text: str, what: str, ok: Callable[[float], bool]) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -44,6 +46,14 @@ def positive_float(text: str) -> float:
 def non_negative_float(text: str) -> float:
     """A finite number ≥ 0, with a one-line error naming the value."""
     return _float_in(text, "a finite number >= 0", lambda v: v >= 0)
+
+
+def path_arg(text: str) -> Path:
+    """A path given on the command line; an empty one is refused (``Path('')`` is the current
+    directory, which a user who typed ``--out ''`` did not mean)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path")
+    return Path(text)
 
 
 def goal_arg(text: str):  # -> worlds.base.Goal

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any, NoReturn
 
-from .argtypes import count, goal_arg, positive_float, positive_int
+from .argtypes import count, goal_arg, path_arg, positive_float, positive_int
 from .errors import CliError, expected_error, one_line
 
 DEFAULT_ACTOR_LAG = 500
@@ -39,14 +39,6 @@ def _version() -> str:
         return version("qlap-runtime")
     except PackageNotFoundError:        # a source tree that was not installed
         return __version__
-
-
-def path_arg(text: str) -> Path:
-    """A path given on the command line; an empty one is refused (``Path('')`` is the current
-    directory, which a user who typed ``--out ''`` did not mean)."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("an empty path")
-    return Path(text)
 
 
 def endpoint_arg(text: str) -> str:

@@ -41,16 +41,11 @@ def run_process(proc: DriverProcess) -> DriverProcess:
     try:
         app.run()
     finally:
-        if proc.alive and not run_finished(app):    # quit mid-run: the agent saves first
+        if proc.alive and not app.run_finished:    # quit mid-run: the agent saves first
             print("stopping the agent: it writes its final checkpoint and outputs …",
                   flush=True)
         proc.stop()
     return proc
-
-
-def run_finished(app: QlapApp) -> bool:
-    """Whether the UI saw the run finish (its last status said so): its outputs are written."""
-    return app.status is not None and app.status.finished
 
 
 def attach(connect: Sequence[str] | str, run_id: str | None = None, **client: Any) -> None:

@@ -400,9 +400,14 @@ class QlapApp(App):
             return reported
         return value
 
+    @property
+    def run_finished(self) -> bool:
+        """Whether the run's latest status says it finished (its outputs are written)."""
+        return self.status is not None and self.status.finished
+
     def _finished(self, what: str) -> bool:
         """True (and says so) when the run is finished: nothing pauses or steps it."""
-        if self.status is not None and self.status.finished:
+        if self.run_finished:
             self.notify(f"the run finished at step {steps_done(self.status.step)}: "
                         f"{what}", severity="warning")
             return True

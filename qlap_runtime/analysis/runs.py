@@ -157,7 +157,7 @@ def run_world(run_dir: Path, checkpoints: list[Checkpoint], override: str | None
                         "summary.json naming one; give --world")
 
 
-KNOWLEDGE_FIELDS: dict[str, type | tuple[type, ...]] = {
+KNOWLEDGE_FIELDS: dict[str, type] = {
     "step": int, "k": int, "landmarks": dict, "dbns": list, "actions": list}
 """The fields of knowledge.json that ``qlap show`` and ``qlap report`` read (docs/outputs.md)."""
 
@@ -170,7 +170,7 @@ def knowledge_problem(knowledge: dict[str, Any]) -> str | None:
             return f"no field {name!r}"
         value = knowledge[name]
         if not isinstance(value, kind) or isinstance(value, bool):
-            return f"{name!r} is {type(value).__name__}, not {kind.__name__}"  # type: ignore[union-attr]
+            return f"{name!r} is {type(value).__name__}, not {kind.__name__}"
     for name, lms in knowledge["landmarks"].items():
         if not isinstance(lms, list) or not all(isinstance(m, dict) for m in lms):
             return f"landmarks of {name!r} are not a list of objects"

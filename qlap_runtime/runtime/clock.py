@@ -215,7 +215,6 @@ class RealtimeClock(LockstepClock):
         self.switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(self.switch_interval, SWITCH_INTERVAL_S))
         super().start(step)
-        self.thresholds = gc.get_threshold()
         gc.set_threshold(self.thresholds[0], self.thresholds[1], NO_FULL_COLLECTION)
 
     def stop(self) -> dict[str, Any]:

@@ -4,6 +4,8 @@ Zenoh session."""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from itertools import pairwise
 from typing import Any
 
@@ -37,6 +39,21 @@ async def delivered(controls: Controls, n: int) -> None:
     """Wait (without advancing the clock: no deadline) until ``n`` controls have arrived."""
     while controls.received < n:
         await controls.wait()
+
+
+@contextlib.contextmanager
+def started_realtime_clock(session: Any) -> Iterator[tuple[RealtimeClock, dict[str, Any]]]:
+    """A :class:`RealtimeClock` at 100 Hz on ``session``'s controls, started at step 0 and
+    stopped at the end; the dict holds the ``controls`` and, once stopped, ``stats``."""
+    counter = RejectionCounter("world")
+    with Controls(session, CTX, counter) as controls:
+        rt = RealtimeClock(controls, counter, hz=100.0)
+        rt.start(0)
+        held: dict[str, Any] = {"controls": controls}
+        try:
+            yield rt, held
+        finally:
+            held["stats"] = rt.stop()
 
 
 async def test_lockstep_is_free_until_paced_then_steps_at_the_set_rate(embedded, clock):
@@ -131,23 +148,18 @@ async def test_the_realtime_loop_freezes_start_up_objects_and_shortens_the_gil_s
     import gc
     import sys
 
-    counter = RejectionCounter("world")
     before = sys.getswitchinterval()
-    with Controls(embedded, CTX, counter) as controls:
-        rt = RealtimeClock(controls, counter, hz=100.0)
-        rt.start(0)
-        try:
-            assert gc.get_freeze_count() > 0
-            assert sys.getswitchinterval() <= 0.0005
-            t0 = trio.current_time()
-            assert await rt.before(0) and await rt.before(1)
-            assert trio.current_time() == pytest.approx(t0 + 0.01)  # to the tick, mock time
-            assert rt.lateness == [0.0, 0.0]
-        finally:
-            stats = rt.stop()
-        assert gc.get_freeze_count() == 0
-        assert sys.getswitchinterval() == before
-        assert set(stats) == {"loop_s", "paused_s", "wait_s", "loop_cpu_s"}
+    with started_realtime_clock(embedded) as (rt, stopped):
+        assert gc.get_freeze_count() > 0
+        assert sys.getswitchinterval() <= 0.0005
+        t0 = trio.current_time()
+        assert await rt.before(0) and await rt.before(1)
+        assert trio.current_time() == pytest.approx(t0 + 0.01)  # to the tick, mock time
+        assert rt.lateness == [0.0, 0.0]
+    stats = stopped["stats"]
+    assert gc.get_freeze_count() == 0
+    assert sys.getswitchinterval() == before
+    assert set(stats) == {"loop_s", "paused_s", "wait_s", "loop_cpu_s"}
 
 
 async def test_the_realtime_loop_defers_full_collections_to_pauses_and_its_end(
@@ -160,33 +172,27 @@ async def test_the_realtime_loop_defers_full_collections_to_pauses_and_its_end(
     class Node:
         pass
 
-    counter = RejectionCounter("world")
     thresholds = gc.get_threshold()
-    with Controls(embedded, CTX, counter) as controls:
-        rt = RealtimeClock(controls, counter, hz=100.0)
-        rt.start(0)
-        try:
-            assert gc.get_threshold() == (thresholds[0], thresholds[1], 1 << 30)
-            held = []
-            for _ in range(10):                 # 10 cycles of two nodes
-                a, b = Node(), Node()
-                a.other, b.other = b, a
-                held.append(a)
-            gc.collect(1)
-            gc.collect(1)                       # survivors of a generation-1 collection: old
-            del held, a, b
-            assert gc.collect(1) == 0           # young collections do not free them
-            put(embedded, "pause")
-            await delivered(controls, 1)
-            async with trio.open_nursery() as nursery:
-                nursery.start_soon(rt.before, 0)
-                await trio.sleep(1)             # paused: the deferred full collection
-                assert rt.full_collections == 1 and rt.collected >= 20
-                put(embedded, "resume")
-        finally:
-            rt.stop()
-        assert gc.get_threshold() == thresholds
-        assert rt.stats()["full_collections"] == 2      # and one at the end
+    with started_realtime_clock(embedded) as (rt, stopped):
+        assert gc.get_threshold() == (thresholds[0], thresholds[1], 1 << 30)
+        held = []
+        for _ in range(10):                     # 10 cycles of two nodes
+            a, b = Node(), Node()
+            a.other, b.other = b, a
+            held.append(a)
+        gc.collect(1)
+        gc.collect(1)                           # survivors of a generation-1 collection: old
+        del held, a, b
+        assert gc.collect(1) == 0               # young collections do not free them
+        put(embedded, "pause")
+        await delivered(stopped["controls"], 1)
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(rt.before, 0)
+            await trio.sleep(1)                 # paused: the deferred full collection
+            assert rt.full_collections == 1 and rt.collected >= 20
+            put(embedded, "resume")
+    assert gc.get_threshold() == thresholds
+    assert rt.stats()["full_collections"] == 2          # and one at the end
 
 
 async def test_the_lockstep_loop_freezes_start_up_objects_too(embedded, clock):
