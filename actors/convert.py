@@ -180,28 +180,91 @@ def apply_batch_context(learner: Any, msg: BatchContext) -> None:
         dbn.is_plan = dbn_id in plans
 
 
+class ArrayPool:
+    """Buffers, touched before the clock starts, for the large arrays a realtime request
+    copies on the world's tick (docs/decisions.md 103). A fresh array of megabytes faults its
+    pages in as the copy writes it, and on this VM that once took 48 ms for the perception's
+    5.4 MB history at step 4,000 (four missed ticks at 100 Hz; 0.7–2.9 ms in the other runs).
+    An array of at least ``MIN_BYTES`` is copied into a buffer of its shape taken from the
+    pool (a fresh one if none is free); :meth:`give_back` returns the buffers once the
+    planner's thread has rebuilt the learner, which copies every array it reads
+    (:func:`~qlap_runtime.qlap.checkpoint.restore_learner`)."""
+
+    MIN_BYTES = 1 << 18
+    KEEP = 2
+    """Free buffers kept per shape (a request is taken long before the next is made)."""
+
+    def __init__(self) -> None:
+        self.free: dict[tuple, list[np.ndarray]] = {}
+        self.lock = threading.Lock()
+
+    @staticmethod
+    def _key(a: np.ndarray) -> tuple:
+        return a.shape, a.dtype.str
+
+    def prepare(self, arrays: dict[str, np.ndarray]) -> int:
+        """Touch a buffer for every large array of ``arrays``; returns how many bytes."""
+        touched = 0
+        for a in arrays.values():
+            if a.nbytes >= self.MIN_BYTES:
+                buf = np.empty_like(a)
+                np.copyto(buf, a)                   # every page written: resident now
+                self.give_back([buf])
+                touched += a.nbytes
+        return touched
+
+    def copy(self, a: np.ndarray) -> np.ndarray:
+        """A copy of ``a``: in a pooled buffer when ``a`` is large."""
+        if a.nbytes < self.MIN_BYTES:
+            return a.copy()
+        with self.lock:
+            bufs = self.free.get(self._key(a))
+            buf = bufs.pop() if bufs else None
+        if buf is None:
+            return a.copy()
+        np.copyto(buf, a)
+        return buf
+
+    def give_back(self, arrays: Any) -> None:
+        """Return the large arrays among ``arrays`` (no longer read by anyone) to the pool."""
+        with self.lock:
+            for a in arrays:
+                if a.nbytes >= self.MIN_BYTES and a.base is None and a.flags.c_contiguous:
+                    bufs = self.free.setdefault(self._key(a), [])
+                    if len(bufs) < self.KEEP:
+                        bufs.append(a)
+
+
 class LocalRequests:
     """The embedded placement's ``planreq``: the executor and the planner share a process, so
     the request hands over a private copy of the agent (:meth:`Agent.planning_copy`, deep: the
     executor goes on while the planner compiles) instead of its files; the message only says
     so (``local``), and stays in the replay log like any other. ``light`` (the realtime
     clock): the learner goes as its checkpoint state, taken in a few ms on the world's tick
-    and rebuilt by :meth:`take` in the planner's thread (docs/decisions.md 82). ``batch``: the
-    learners' copy of the same state, handed to their batch in this process, which applies
-    the batch's operations to it as it computes (what the synchronous loop's ``take_batch``
-    gives): the compilation runs on it once the batch's deltas are out, without a second
-    copy on the step chain (docs/decisions.md 86)."""
+    (its large arrays copied into :class:`ArrayPool` buffers touched at start-up,
+    :meth:`prepare`) and rebuilt by :meth:`take` in the planner's thread (docs/decisions.md
+    82, 103). ``batch``: the learners' copy of the same state, handed to their batch in this
+    process, which applies the batch's operations to it as it computes (what the synchronous
+    loop's ``take_batch`` gives): the compilation runs on it once the batch's deltas are out,
+    without a second copy on the step chain (docs/decisions.md 86)."""
 
     def __init__(self) -> None:
         self.agents: dict[tuple[str, int], tuple[Agent, Any]] = {}
         self.lock = threading.Lock()
+        self.pool = ArrayPool()
+
+    def prepare(self, learner: Any) -> int:
+        """Before a realtime run's clock starts: buffers for the light requests' large arrays
+        (:class:`ArrayPool`); returns the bytes touched."""
+        return self.pool.prepare(learner_state(learner)[1])
 
     def put(self, run_id: str, agent: Agent, step: int, light: bool = False,
             batch: Any = None) -> PlanRequest:
         state: Any
         if light:
             meta, arrays = learner_state(agent.learner)
-            state = (json.loads(json.dumps(meta)), {k: v.copy() for k, v in arrays.items()})
+            state = (json.loads(json.dumps(meta)),
+                     {k: self.pool.copy(v) for k, v in arrays.items()})
             copy = agent.planning_copy(agent.learner, deep=True)    # its learner: take's
         elif batch is not None:
             state, copy = BATCHED, agent.planning_copy(batch, deep=True)
@@ -219,6 +282,7 @@ class LocalRequests:
             return copy, True
         if state is not None:
             copy.learner = restore_learner(*state)
+            self.pool.give_back(state[1].values())      # the learner copied what it reads
         return copy, False
 
 

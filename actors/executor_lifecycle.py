@@ -46,6 +46,7 @@ class ExecutorLifecycle(ActorBase):
 
     async def start(self) -> None:
         await self.actor.start()
+        self.links.prepare(self.agent)
         if self.checkpoint is not None:
             self.links.resumed(self.agent)
         if self.chain is not None:      # between steps until the world calls step

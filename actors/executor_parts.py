@@ -108,6 +108,12 @@ class BatchLinks:
         if batch_kinds(ctx.params, ctx.start) and ctx.start < ctx.end:
             self.contexts.put(ctx.start - 1, batch_context(agent, ctx.start - 1))
 
+    def prepare(self, agent: Agent) -> None:
+        """Before the first step: under the realtime clock with the planner in this process,
+        the buffers its light requests copy the learner's large arrays into (decision 103)."""
+        if self.ctx.realtime and self.ctx.together("executor", "planner"):
+            LOCAL.prepare(agent.learner)
+
     def rejected(self, t: int) -> None:
         if t in self.plans.asked:
             self.requests.put(t, PlanRequest(t, rejected=True))

@@ -105,3 +105,42 @@ async def test_the_planner_compiles_in_its_task_beside_the_step_chain_in_lockste
         assert inline((ACTORS,)) and inline(LAYOUTS["two"])
         assert not inline(LAYOUTS["each"]) and not inline(())
         assert not inline((ACTORS,), clock="realtime")
+
+
+def test_a_light_request_copies_large_arrays_into_buffers_touched_before_the_run():
+    """Decision 103: a realtime request's large arrays go into pooled buffers, prepared before
+    the clock starts and given back once the planner's thread has rebuilt the learner, which
+    shares no memory with them."""
+    import numpy as np
+
+    from actors.convert import ArrayPool, LocalRequests
+    from qlap_runtime.qlap.checkpoint import learner_state
+
+    world = worlds.make("core2d")
+    params = params_for_world(world, PARAMS)
+    agent, _ = agent_run.run_agent(world, 1200, 5, params=params)
+    world.close()
+    requests = LocalRequests()
+    _, arrays = learner_state(agent.learner)
+    large = {k for k, v in arrays.items() if v.nbytes >= ArrayPool.MIN_BYTES}
+    assert large == {"perception.hist_x", "perception.hist_q"}
+    assert requests.prepare(agent.learner) == sum(arrays[k].nbytes for k in large)
+    pooled = {id(b) for bufs in requests.pool.free.values() for b in bufs}
+    assert len(pooled) == 2
+
+    requests.put("r", agent, 1200, light=True)
+    _, (meta, copied) = requests.agents[("r", 1200)]
+    assert {k for k, v in copied.items() if id(v) in pooled} == large    # no fresh pages
+    assert requests.pool.free == {key: [] for key in requests.pool.free}
+    for k, v in copied.items():
+        assert np.array_equal(v, arrays[k], equal_nan=True), k
+    copy, applied = requests.take("r", 1200)
+    assert not applied
+    restored_meta, restored = learner_state(copy.learner)
+    assert restored_meta["step"] == meta["step"] == agent.learner.step
+    for k in large:                                 # the learner copied what it read
+        assert np.array_equal(restored[k], arrays[k], equal_nan=True)
+        assert not any(np.shares_memory(restored[k], copied[j]) for j in large)
+    assert {id(b) for bufs in requests.pool.free.values() for b in bufs} == pooled
+    small = np.zeros(10)
+    assert requests.pool.copy(small) is not small and requests.pool.free    # small: a copy
