@@ -496,7 +496,7 @@ class Agent:
             return
         sizes = self._sizes()
         plan.refresh(self._rel_action, dbn_rel_state(dbn, sizes, self.params.prior),
-                     dyna=not self.params.ablations.no_dyna)
+                     dyna=not self.params.ablations.no_dyna, usable=self._usable)
 
     def _update_plan_contexts(self) -> tuple[tuple[int, tuple[int, ...]], ...]:
         """Second-order DBNs learn C_o like other DBNs; C_o joins the plan's space (§5.4).

@@ -92,7 +92,8 @@ class Plan:
         self.space: PlanStateSpace | None = None
         self.actions: list[MDPAction] = []
         self.spec: PlanSpec | None = None
-        self.usable: Usable | None = None
+        self._usable_flags: tuple[bool, ...] | None = None
+        """Each action's usability at the last build or refresh (see :meth:`_structure`)."""
         self.ever_reliable = False
         """Sticky: brel(o) > θ_SR at some time (§5.4.1); see :meth:`refresh_reliable`."""
         self.last_planned: np.ndarray | None = None
@@ -151,15 +152,14 @@ class Plan:
                 and actions == self.actions and spec == self.spec)
         old_space, old_actions, old_q = self.space, self.actions, self.q
         self.spec, self.space, self.actions = spec, space, actions
-        self.usable = usable
         cached = getattr(self, "_model_cache", None)
         if same and self.model is not None and cached is not None \
-                and cached[2] is self.model and cached[0] == self._structure():
+                and cached[2] is self.model and cached[0] == self._structure(usable):
             # Only rel(a) and rel(r, s) may have changed, and the model's probabilities are
             # read by Dyna and value iteration alone, which get the model anew with the
             # reliabilities of their time (refresh; a structure change): left until then.
             return False
-        self.model = self._model(rel_action, rel_model)
+        self.model = self._model(rel_action, rel_model, usable)
         if not same:
             model, params = self.model, self.params
 
@@ -177,12 +177,12 @@ class Plan:
             self.sarsa = SarsaLambda(self.q, self.params)
         return not same
 
-    def _model(self, rel_action: RelAction, rel_model) -> TransitionModel:
+    def _model(self, rel_action: RelAction, rel_model, usable: Usable | None) -> TransitionModel:
         assert self.space is not None
         assert self.spec is not None
         space = self.space
-        structure = self._structure()
-        usable = structure[3]
+        structure = self._structure(usable)
+        usable_j = structure[3]
         rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
         rel_r = rel_model(space)
         # The model is a function of these alone (the regress mask below follows from the
@@ -210,22 +210,31 @@ class Plan:
                   and a.var != self.spec.antecedent.var):
                 # Appendix A item 1: actions on nominal variables already achieved in s.
                 regress[:, j] = vals[:, space.position(a.var)] == a.value
-            if not usable[j]:
+            if not usable_j[j]:
                 regress[:, j] = True             # e.g. a motor value out of the motor's range
         model = TransitionModel.build(space, self.actions, self.spec, rel_a, rel_r, regress)
         self._model_cache = (structure, rels, model)
         return model
 
-    def _structure(self) -> tuple:
+    def _structure(self, usable: Usable | None) -> tuple:
         """What the model is, besides rel(a) and rel(r, s), a function of: the space, the
-        actions, the spec and each action's usability."""
-        usable = tuple(a.var < 0 or self.usable is None or bool(self.usable(a.var, a.value))
-                       for a in self.actions)
-        return (self.space, tuple(self.actions), self.spec, usable)
+        actions, the spec and each action's usability (asked of ``usable`` now, never kept:
+        the agent's bound method in a plan made every planning copy of the agent cyclic
+        garbage, docs/decisions.md 104)."""
+        if usable is None and self._usable_flags is not None \
+                and len(self._usable_flags) == len(self.actions):
+            flags = self._usable_flags           # a refresh without ``usable``: the build's
+        else:
+            flags = tuple(a.var < 0 or usable is None or bool(usable(a.var, a.value))
+                          for a in self.actions)
+        self._usable_flags = flags
+        return (self.space, tuple(self.actions), self.spec, flags)
 
-    def refresh(self, rel_action: RelAction, rel_model, dyna: bool) -> None:
-        """New statistics: rebuild T_i and, unless ablated, one Dyna sweep (§5.2.2, eq. 5.10)."""
-        self.model = self._model(rel_action, rel_model)
+    def refresh(self, rel_action: RelAction, rel_model, dyna: bool,
+                usable: Usable | None = None) -> None:
+        """New statistics: rebuild T_i and, unless ablated, one Dyna sweep (§5.2.2, eq. 5.10).
+        ``usable`` as for :meth:`build`; None keeps the usability the last build found."""
+        self.model = self._model(rel_action, rel_model, usable)
         if dyna:
             dyna_sweep(self.q, self.model, self.params)
 
