@@ -91,10 +91,11 @@ def one_round(args: argparse.Namespace) -> dict[str, float]:
         label = "processes" if layout == "two" else f"processes/{layout}"
         runs.append((label, partial(run_processes, groups=layout)))
     for name, fn in runs:
-        out = Path(tempfile.mkdtemp(prefix=f"bench-{name.replace('/', '-')}-"))
-        s = fn(RunContext(f"bench-{name.replace('/', '-')}", args.world, args.steps, args.seed,
-                          params, out=out))
-        same = (out / "knowledge.json").read_text() == reference
+        with tempfile.TemporaryDirectory(prefix=f"bench-{name.replace('/', '-')}-") as tmp:
+            out = Path(tmp)
+            s = fn(RunContext(f"bench-{name.replace('/', '-')}", args.world, args.steps,
+                              args.seed, params, out=out))
+            same = (out / "knowledge.json").read_text() == reference
         loop_wall = args.steps / s["loop_steps_per_s"]
         ratios[name] = loop_wall / sync_wall
         print(f"  {name:15s} {s['loop_steps_per_s']:8,.0f} steps/s (start-up excluded; "
@@ -105,18 +106,19 @@ def one_round(args: argparse.Namespace) -> dict[str, float]:
     if args.local:
         from tui.driver import LocalDriver
 
-        out = Path(tempfile.mkdtemp(prefix="bench-local-"))
-        world = worlds.make(args.world)
-        d = LocalDriver(world, seed=args.seed, params=params, steps=args.steps, out=out,
-                        run_id="bench-local", world_spec=args.world)
-        t0 = time.perf_counter()
-        d.start()
-        while not d.finished and d.alive:
-            d.wait(0.05)
-        wall = time.perf_counter() - t0
-        d.stop()
-        world.close()
-        same = (out / "knowledge.json").read_text() == reference
+        with tempfile.TemporaryDirectory(prefix="bench-local-") as tmp:
+            out = Path(tmp)
+            world = worlds.make(args.world)
+            d = LocalDriver(world, seed=args.seed, params=params, steps=args.steps, out=out,
+                            run_id="bench-local", world_spec=args.world)
+            t0 = time.perf_counter()
+            d.start()
+            while not d.finished and d.alive:
+                d.wait(0.05)
+            wall = time.perf_counter() - t0
+            d.stop()
+            world.close()
+            same = (out / "knowledge.json").read_text() == reference
         ratios["local"] = wall / sync_wall
         print(f"  {'local':15s} {args.steps / wall:8,.0f} steps/s (start-up included)  "
               f"wall / sync {wall / sync_wall:.2f}  identical knowledge: {same}", flush=True)
