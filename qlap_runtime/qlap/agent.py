@@ -19,7 +19,7 @@ import copy
 import math
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -28,6 +28,7 @@ from .actions import (
     ActionKey,
     ActionStats,
     ActionTable,
+    PlanStats,
     motor_reachable,
     motor_value_for,
     plan_slots,
@@ -581,7 +582,7 @@ class Agent:
                 continue
             if on_magnitude and plan.goal.direction != a.direction:
                 continue
-            if dbn.kind != CHANGE or plan.ever_reliable:
+            if dbn.kind != CHANGE or self._plan_reliable(plan):
                 return True
             if targeted and self.params.nrp_targeted and self._reliable_cells(
                     plan.cpt_s, plan.cpt_f, self.params.theta_sr_targeted):
@@ -639,7 +640,7 @@ class Agent:
                     continue
             else:
                 change_plans = sorted((pl for pl in mine if pl.kind == CHANGE), key=lambda x: x.id)
-                slots = plan_slots([pl.plan_stats(t) for pl in change_plans], p,
+                slots = plan_slots([self._slot_stats(pl, t) for pl in change_plans], p,
                                    self.actions[key] if mine else None)   # decision 36
                 for i in slots.remove:
                     self._remove_plan(change_plans[i].id)
@@ -650,6 +651,23 @@ class Agent:
             if self._add_plan(dbn, t if created is None else created) is not None \
                     and edge[1] not in adj.get(edge[0], ()):
                 adj.setdefault(edge[0], []).append(edge[1])
+
+    def _plan_reliable(self, plan: Plan) -> bool:
+        """A sufficiently reliable plan (§5.4.1, §6.2.2): brel(o) > θ_SR at some time, or,
+        with ``Params.plan_reliable == "dbn"``, its DBN sufficiently reliable (decision 105)."""
+        if plan.ever_reliable:
+            return True
+        if self.params.plan_reliable != "dbn":
+            return False
+        dbn = self.learner.dbns.get(plan.dbn_id)
+        return dbn is not None and dbn.ever_reliable
+
+    def _slot_stats(self, plan: Plan, t: int) -> PlanStats:
+        """The plan's slot counts (§6.2.2), "sufficiently reliable" by :meth:`_plan_reliable`."""
+        st = plan.plan_stats(t)
+        if not st.reliable and self._plan_reliable(plan):
+            st = replace(st, reliable=True)
+        return st
 
     def _reliable_at(self, dbn: DBN, theta: float) -> bool:
         return self._reliable_cells(dbn.cpt_s, dbn.cpt_f, theta, len(dbn.context))

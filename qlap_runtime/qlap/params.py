@@ -179,6 +179,12 @@ class Params:
     """A plan may be replaced only after 30 calls (§6.2.2)."""
     plan_remove_below: float = 0.05
     """A plan whose rel(o) falls below this is removed (§6.2.2)."""
+    plan_reliable: str = "o"
+    """What makes a plan "sufficiently reliable" (§6.2.2's slots and criterion 1): ``"o"``,
+    brel(o) of its second-order model > θ_SR at some time (§5.4.1, decisions 29–30);
+    ``"dbn"``, that, or its DBN sufficiently reliable (brel(r) > θ_SR = 0.75 at some time,
+    §4.2.2): §5.4.1's "a plan can *also* be sufficiently reliable if … brel(o) > θ_SR"
+    (docs/decisions.md 105)."""
     plan_replace: str = "eligible"
     """Which plan a new one replaces in a full action (§6.2.2: "the plan with the lowest
     reliability rel(o) that has been called more than 30 times can be replaced"):
@@ -230,6 +236,9 @@ class Params:
         if self.plan_replace not in ("eligible", "lowest"):
             raise ValueError(f"Params.plan_replace must be 'eligible' or 'lowest', "
                              f"got {self.plan_replace!r}")
+        if self.plan_reliable not in ("o", "dbn"):
+            raise ValueError(f"Params.plan_reliable must be 'o' or 'dbn', "
+                             f"got {self.plan_reliable!r}")
         if self.iac_records not in ("all", "practice"):
             raise ValueError(f"Params.iac_records must be 'all' or 'practice', "
                              f"got {self.iac_records!r}")

@@ -755,3 +755,37 @@ def test_a_planning_copy_is_freed_as_soon_as_it_is_dropped(trained):
         assert gone_agent() is None and gone_learner() is None
     finally:
         gc.enable()
+
+
+def test_plan_reliable_dbn_counts_a_plan_whose_dbn_is_sufficiently_reliable():
+    """``Params.plan_reliable == "dbn"`` (decision 105): criterion 1 of §6.2.2 takes a plan of
+    the antecedent whose DBN is sufficiently reliable, though the plan's brel(o) never was; a
+    magnitude plan whose DBN never was still does not count."""
+    agent = nrp_agent(PARAMS.replace(plan_reliable="dbn"))
+    xdot, ydot = agent.table.index("x.dot"), agent.table.index("y.dot")
+    add_dbn(agent, 5, CHANGE, (xdot, 2, 0), (ydot, 0, 0), 30, 3)      # ⟨ẋ→[+] ⇒ ẏ→[−]⟩
+    agent._convert_dbns_to_plans(100)
+    # DBN 0's plan (a(ẋ, [+]); DBN 0 sufficiently reliable) is made first (rel(r) 41/44 =
+    # 0.93 against DBN 5's 31/35), so DBN 5 converts in the same batch; DBN 4 waits for a
+    # reliable plan reaching x = 5 from below (DBN 2 is not sufficiently reliable)
+    assert plan_dbns(agent) == [0, 1, 2, 3, 5]
+    assert not any(pl.ever_reliable for pl in agent.plans.values())
+    agent.learner.dbns[2].ever_reliable = True
+    agent._convert_dbns_to_plans(102)
+    assert plan_dbns(agent) == [0, 1, 2, 3, 4, 5]
+
+
+@pytest.mark.parametrize("reading", ["o", "dbn"])
+def test_plan_reliable_dbn_protects_a_plan_from_replacement(reading):
+    """§6.2.2's slots: a plan "sufficiently reliable" is never replaced; with
+    ``plan_reliable == "dbn"`` a plan whose DBN is sufficiently reliable counts (decision
+    105), so a plan of rel(o) 5/40 keeps its slot; by brel(o) alone it is replaced."""
+    agent = fresh_agent(SPECS, PARAMS.replace(max_plans_per_action=1, plan_reliable=reading))
+    u, xdot = agent.table.index("u"), agent.table.index("x.dot")
+    add_dbn(agent, 0, CHANGE, (u, 2, 0), (xdot, 2, 0), 20, 5)
+    agent._convert_dbns_to_plans(100)
+    (plan,) = agent.plans.values()
+    plan.calls, plan.successes = 40, 5                   # rel(o) 0.15 (≥ 0.05: not removed)
+    add_dbn(agent, 1, CHANGE, (u, 1, 0), (xdot, 2, 0), 40, 2)
+    agent._convert_dbns_to_plans(200)
+    assert plan_dbns(agent) == ([0] if reading == "dbn" else [1])
