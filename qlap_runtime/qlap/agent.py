@@ -82,7 +82,7 @@ from .probability import prob_above, success_probability
 from .variables import Kind, VariableTable
 
 RUN, SUCCESS, FAIL = "run", "success", "fail"
-CHANGE_MINUS, CHANGE_PLUS = 0, 2
+CHANGE_MINUS, CHANGE_ZERO, CHANGE_PLUS = 0, 1, 2
 
 
 @dataclass
@@ -1064,6 +1064,13 @@ class Agent:
                 self.actions.record(key, False, None, practised)  # §5.5.2: no usable plan
             return FAIL
         plan = plans[idx]
+        # §5.5 footnote 5: called by a plan while already achieved, a direction-of-change
+        # action's plan acts as if it were not, to give the motor command that keeps it.
+        as_if = None
+        if (self.params.achieved_call == "support" and self.call_list
+                and v.kind is Kind.CHANGE and q != CHANGE_ZERO
+                and self._q_list(p)[var] == q):
+            as_if = (var, CHANGE_ZERO)
         frame = Frame(key, t, plan_id=plan.id, last_change=t, call_x=p.x.copy(),
                       practised=practised)
         self.call_list.append(frame)
@@ -1072,7 +1079,7 @@ class Agent:
         if self._sarsa_on():
             self._keep_for_trial(plan)
             plan.sarsa.reset()
-        status = self._next_sub(depth, p, first=True)
+        status = self._next_sub(depth, p, first=True, as_if=as_if)
         if status == FAIL:
             self._terminate(depth, FAIL, p)
         return status
@@ -1081,11 +1088,19 @@ class Agent:
         assert plan.space is not None
         return plan.space.index_from_full(self._q_list(p))
 
-    def _next_sub(self, i: int, p: Percept, first: bool = False) -> str:
-        """Choose and call the plan's next action by its policy (ε-greedy, §6.1.3)."""
+    def _next_sub(self, i: int, p: Percept, first: bool = False,
+                  as_if: tuple[int, int] | None = None) -> str:
+        """Choose and call the plan's next action by its policy (ε-greedy, §6.1.3);
+        ``as_if`` (var, value): from the state with that variable at that value."""
         f = self.call_list[i]
         plan = self.plans[f.plan_id]
-        s2 = self._plan_state(plan, p)
+        if as_if is None:
+            s2 = self._plan_state(plan, p)
+        else:
+            assert plan.space is not None
+            full = list(self._q_list(p))
+            full[as_if[0]] = as_if[1]
+            s2 = plan.space.index_from_full(full)
         if s2 is None:
             return FAIL
         goal = bool(plan.model is not None and plan.model.goal[s2])

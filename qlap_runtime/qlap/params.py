@@ -163,6 +163,13 @@ class Params:
     """Which terminations eq. 6.1 records and counts towards its 2θ calls: ``"all"``, every
     termination of the action, as a sub-action of a plan too; ``"practice"``, only those of
     calls made to practise it (docs/decisions.md 79)."""
+    achieved_call: str = "fail"
+    """A direction-of-change action called by a plan while its value already holds:
+    ``"fail"``, it fails at its call (docs/decisions.md 70); ``"support"``, §5.5 footnote 5
+    ("its plan treats it as not being achieved … it may need to get the motor command that
+    achieves it to support some higher action"): its plan's policy chooses from the state with
+    the variable at [0], and the action succeeds on the next step if the value still holds
+    (docs/decisions.md 106)."""
     plan_epsilon: float = 0.05
     """ε of the ε-greedy plan choice (§6.1.2)."""
     policy_epsilon: float = 0.05
@@ -239,6 +246,9 @@ class Params:
         if self.plan_reliable not in ("o", "dbn"):
             raise ValueError(f"Params.plan_reliable must be 'o' or 'dbn', "
                              f"got {self.plan_reliable!r}")
+        if self.achieved_call not in ("fail", "support"):
+            raise ValueError(f"Params.achieved_call must be 'fail' or 'support', "
+                             f"got {self.achieved_call!r}")
         if self.iac_records not in ("all", "practice"):
             raise ValueError(f"Params.iac_records must be 'all' or 'practice', "
                              f"got {self.iac_records!r}")

@@ -789,3 +789,33 @@ def test_plan_reliable_dbn_protects_a_plan_from_replacement(reading):
     add_dbn(agent, 1, CHANGE, (u, 1, 0), (xdot, 2, 0), 40, 2)
     agent._convert_dbns_to_plans(200)
     assert plan_dbns(agent) == ([0] if reading == "dbn" else [1])
+
+
+@pytest.mark.parametrize("reading", ["fail", "support"])
+def test_an_achieved_change_action_called_by_a_plan_gives_its_motor_command(
+        trained, tmp_path, reading):
+    """§5.5 footnote 5 (``Params.achieved_call == "support"``, decision 106): a(ẋ, [+]) called
+    by a plan while ẋ = [+] already runs its plan from the state with ẋ at [0], which commands
+    u into the range that moves x up; the other reading (decision 70) fails at the call."""
+    save_agent(trained[0], tmp_path / "ck")
+    agent = load_agent(tmp_path / "ck")
+    agent.params = agent.params.replace(achieved_call=reading)
+    up = key_of(agent, "x.dot", 2)
+    u = agent.table.index("u")
+    t = agent.step_count + 1
+    agent.call_list, agent.goal = [], None
+    agent.step(t, {"x": 5.0})
+    agent.step(t + 1, {"x": 5.4})                     # x rose: ẋ = [+]
+    p = agent._last_percept
+    assert agent._achieved(up, p)
+    agent.motor["u"] = 0.0
+    parent = Frame(key_of(agent, "x", 0), t + 1)      # the calling plan's frame
+    agent.call_list = [parent]
+    status = agent._call(up, p)
+    if reading == "fail":
+        assert status == FAIL and agent.call_list == [parent]
+        return
+    assert status == RUN
+    keys = [f.key[0] for f in agent.call_list]
+    assert keys[:2] == [parent.key[0], up[0]] and keys[-1] == u
+    assert agent.motor["u"] > 0.29                    # u → (0.3…, +∞): the value that moves x up
