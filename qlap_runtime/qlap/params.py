@@ -34,6 +34,16 @@ class Ablations:
     """No restriction that a DBN's antecedent be achievable by a reliable plan (§6.2.2)."""
 
 
+READINGS: dict[str, tuple[str, ...]] = {
+    "iac_progress": ("cumulative", "windowed"),
+    "plan_replace": ("eligible", "lowest"),
+    "plan_reliable": ("o", "dbn"),
+    "achieved_call": ("fail", "support"),
+    "iac_records": ("all", "practice"),
+}
+"""The readings a switch of :class:`Params` may name (the first is the default; the others
+were measured and rejected, docs/decisions.md)."""
+
 @dataclass(frozen=True)
 class Params:
     """QLAP's parameters; the docstring under each field names its source section."""
@@ -237,21 +247,10 @@ class Params:
         if self.batch_lag < 0 or self.batch_lag >= self.dbn_period:
             raise ValueError(
                 f"Params.batch_lag must lie in [0, dbn_period), got {self.batch_lag!r}")
-        if self.iac_progress not in ("cumulative", "windowed"):
-            raise ValueError(f"Params.iac_progress must be 'cumulative' or 'windowed', "
-                             f"got {self.iac_progress!r}")
-        if self.plan_replace not in ("eligible", "lowest"):
-            raise ValueError(f"Params.plan_replace must be 'eligible' or 'lowest', "
-                             f"got {self.plan_replace!r}")
-        if self.plan_reliable not in ("o", "dbn"):
-            raise ValueError(f"Params.plan_reliable must be 'o' or 'dbn', "
-                             f"got {self.plan_reliable!r}")
-        if self.achieved_call not in ("fail", "support"):
-            raise ValueError(f"Params.achieved_call must be 'fail' or 'support', "
-                             f"got {self.achieved_call!r}")
-        if self.iac_records not in ("all", "practice"):
-            raise ValueError(f"Params.iac_records must be 'all' or 'practice', "
-                             f"got {self.iac_records!r}")
+        for name, choices in READINGS.items():
+            if getattr(self, name) not in choices:
+                raise ValueError(f"Params.{name} must be one of {', '.join(map(repr, choices))}, "
+                                 f"got {getattr(self, name)!r}")
         if self.k_fixed is not None and self.k_fixed < 1:
             raise ValueError(f"Params.k_fixed must be >= 1 or None, got {self.k_fixed!r}")
         if self.derivative_zero_band < 0 or self.motor_zero_band < 0:

@@ -14,6 +14,7 @@ from qlap_runtime.qlap import Params
 from qlap_runtime.qlap.agent import FAIL, RUN, Agent, Frame
 from qlap_runtime.qlap.checkpoint import load_agent, save_agent
 from qlap_runtime.qlap.dbn import CHANGE, DBN, MAGNITUDE
+from qlap_runtime.qlap.perception import Percept
 from tests.qlap.toyworld import SPECS, ToyWorld
 
 PARAMS = Params(babble_steps=14_000)
@@ -711,11 +712,9 @@ def test_a_sub_action_that_fails_as_it_is_called_gets_a_terminal_sarsa_update():
     assert np.array_equal(plan.q, before)
 
 
-def test_a_change_action_called_while_its_goal_holds_fails_at_its_call(trained, tmp_path):
-    """§5.2.1 footnote 2 lets a plan's policy call a(ẋ, [+]) while ẋ = [+] already. Every state
-    of that action's own plans with ẋ = [+] is a goal state with no action to choose, so the
-    call fails on the step it is made and rel(a) counts one failure (docs/decisions.md 70:
-    the reading that lets it succeed at the next step was measured, and made tasks worse)."""
+def moving_up(trained, tmp_path) -> tuple[Agent, tuple[int, int], Percept]:
+    """A copy of the trained agent two steps on, x having risen (ẋ = [+]): (agent, the key of
+    a(ẋ, [+]), the percept)."""
     save_agent(trained[0], tmp_path / "ck")
     agent = load_agent(tmp_path / "ck")
     up = key_of(agent, "x.dot", 2)
@@ -725,6 +724,15 @@ def test_a_change_action_called_while_its_goal_holds_fails_at_its_call(trained, 
     agent.step(t + 1, {"x": 5.4})                     # x rose: ẋ = [+]
     p = agent._last_percept
     assert agent._achieved(up, p)
+    return agent, up, p
+
+
+def test_a_change_action_called_while_its_goal_holds_fails_at_its_call(trained, tmp_path):
+    """§5.2.1 footnote 2 lets a plan's policy call a(ẋ, [+]) while ẋ = [+] already. Every state
+    of that action's own plans with ẋ = [+] is a goal state with no action to choose, so the
+    call fails on the step it is made and rel(a) counts one failure (docs/decisions.md 70:
+    the reading that lets it succeed at the next step was measured, and made tasks worse)."""
+    agent, up, p = moving_up(trained, tmp_path)
     plan = agent._usable_plans(up, p, agent._plan_groups().plans_of(up))[0]
     assert plan.model.goal[agent._plan_state(plan, p)]           # a goal state of its plan
     stats = agent.actions[up]
@@ -797,19 +805,11 @@ def test_an_achieved_change_action_called_by_a_plan_gives_its_motor_command(
     """§5.5 footnote 5 (``Params.achieved_call == "support"``, decision 106): a(ẋ, [+]) called
     by a plan while ẋ = [+] already runs its plan from the state with ẋ at [0], which commands
     u into the range that moves x up; the other reading (decision 70) fails at the call."""
-    save_agent(trained[0], tmp_path / "ck")
-    agent = load_agent(tmp_path / "ck")
+    agent, up, p = moving_up(trained, tmp_path)
     agent.params = agent.params.replace(achieved_call=reading)
-    up = key_of(agent, "x.dot", 2)
     u = agent.table.index("u")
-    t = agent.step_count + 1
-    agent.call_list, agent.goal = [], None
-    agent.step(t, {"x": 5.0})
-    agent.step(t + 1, {"x": 5.4})                     # x rose: ẋ = [+]
-    p = agent._last_percept
-    assert agent._achieved(up, p)
     agent.motor["u"] = 0.0
-    parent = Frame(key_of(agent, "x", 0), t + 1)      # the calling plan's frame
+    parent = Frame(key_of(agent, "x", 0), p.step)     # the calling plan's frame
     agent.call_list = [parent]
     status = agent._call(up, p)
     if reading == "fail":
