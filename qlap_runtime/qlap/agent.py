@@ -1068,8 +1068,7 @@ class Agent:
         # action's plan acts as if it were not, to give the motor command that keeps it.
         as_if = None
         if (self.params.achieved_call == "support" and self.call_list
-                and v.kind is Kind.CHANGE and q != CHANGE_ZERO
-                and self._q_list(p)[var] == q):
+                and v.kind is Kind.CHANGE and q != CHANGE_ZERO and self._achieved(key, p)):
             as_if = (var, CHANGE_ZERO)
         frame = Frame(key, t, plan_id=plan.id, last_change=t, call_x=p.x.copy(),
                       practised=practised)
@@ -1084,9 +1083,15 @@ class Agent:
             self._terminate(depth, FAIL, p)
         return status
 
-    def _plan_state(self, plan: Plan, p: Percept) -> int | None:
+    def _plan_state(self, plan: Plan, p: Percept,
+                    as_if: tuple[int, int] | None = None) -> int | None:
+        """The plan's state in ``p``; ``as_if`` (var, value): with that variable at that value."""
         assert plan.space is not None
-        return plan.space.index_from_full(self._q_list(p))
+        full = self._q_list(p)
+        if as_if is not None:
+            full = list(full)
+            full[as_if[0]] = as_if[1]
+        return plan.space.index_from_full(full)
 
     def _next_sub(self, i: int, p: Percept, first: bool = False,
                   as_if: tuple[int, int] | None = None) -> str:
@@ -1094,13 +1099,7 @@ class Agent:
         ``as_if`` (var, value): from the state with that variable at that value."""
         f = self.call_list[i]
         plan = self.plans[f.plan_id]
-        if as_if is None:
-            s2 = self._plan_state(plan, p)
-        else:
-            assert plan.space is not None
-            full = list(self._q_list(p))
-            full[as_if[0]] = as_if[1]
-            s2 = plan.space.index_from_full(full)
+        s2 = self._plan_state(plan, p, as_if)
         if s2 is None:
             return FAIL
         goal = bool(plan.model is not None and plan.model.goal[s2])

@@ -44,6 +44,7 @@ READINGS: dict[str, tuple[str, ...]] = {
 """The readings a switch of :class:`Params` may name (the first is the default; the others
 were measured and rejected, docs/decisions.md)."""
 
+
 @dataclass(frozen=True)
 class Params:
     """QLAP's parameters; the docstring under each field names its source section."""

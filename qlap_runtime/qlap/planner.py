@@ -93,7 +93,7 @@ class Plan:
         self.actions: list[MDPAction] = []
         self.spec: PlanSpec | None = None
         self._usable_flags: tuple[bool, ...] | None = None
-        """Each action's usability at the last build or refresh (see :meth:`_structure`)."""
+        """Each action's usability at the last build or refresh (see :meth:`_flags`)."""
         self.ever_reliable = False
         """Sticky: brel(o) > θ_SR at some time (§5.4.1); see :meth:`refresh_reliable`."""
         self.last_planned: np.ndarray | None = None
@@ -154,7 +154,7 @@ class Plan:
         self.spec, self.space, self.actions = spec, space, actions
         cached = getattr(self, "_model_cache", None)
         if same and self.model is not None and cached is not None \
-                and cached[2] is self.model and cached[0] == self._structure(usable):
+                and cached[2] is self.model and cached[0] == self._structure(self._flags(usable)):
             # Only rel(a) and rel(r, s) may have changed, and the model's probabilities are
             # read by Dyna and value iteration alone, which get the model anew with the
             # reliabilities of their time (refresh; a structure change): left until then.
@@ -181,7 +181,7 @@ class Plan:
         assert self.space is not None
         assert self.spec is not None
         space = self.space
-        structure = self._structure(usable)
+        structure = self._structure(self._flags(usable))
         usable_j = structure[3]
         rel_a = [rel_action(a.var, a.value) if a.var >= 0 else 1.0 for a in self.actions]
         rel_r = rel_model(space)
@@ -216,18 +216,20 @@ class Plan:
         self._model_cache = (structure, rels, model)
         return model
 
-    def _structure(self, usable: Usable | None) -> tuple:
-        """What the model is, besides rel(a) and rel(r, s), a function of: the space, the
-        actions, the spec and each action's usability (asked of ``usable`` now, never kept:
-        the agent's bound method in a plan made every planning copy of the agent cyclic
-        garbage, docs/decisions.md 104)."""
+    def _flags(self, usable: Usable | None) -> tuple[bool, ...]:
+        """Each action's usability, asked of ``usable`` now and kept as flags, never the
+        callable (the agent's bound method in a plan made every planning copy of the agent
+        cyclic garbage, docs/decisions.md 104); without ``usable``, the flags last found."""
         if usable is None and self._usable_flags is not None \
                 and len(self._usable_flags) == len(self.actions):
-            flags = self._usable_flags           # a refresh without ``usable``: the build's
-        else:
-            flags = tuple(a.var < 0 or usable is None or bool(usable(a.var, a.value))
-                          for a in self.actions)
-        self._usable_flags = flags
+            return self._usable_flags
+        self._usable_flags = tuple(a.var < 0 or usable is None or bool(usable(a.var, a.value))
+                                   for a in self.actions)
+        return self._usable_flags
+
+    def _structure(self, flags: tuple[bool, ...]) -> tuple:
+        """What the model is, besides rel(a) and rel(r, s), a function of: the space, the
+        actions, the spec and each action's usability (:meth:`_flags`)."""
         return (self.space, tuple(self.actions), self.spec, flags)
 
     def refresh(self, rel_action: RelAction, rel_model, dyna: bool,
