@@ -14,7 +14,6 @@ from, what it tells the batch actors and the planner, its controls and display, 
 
 from __future__ import annotations
 
-import copy
 import time
 from pathlib import Path
 from typing import Any
@@ -28,14 +27,13 @@ from qlap_runtime.qlap.checkpoint import (
     atomic_write_json,
     load_agent,
     save_final_checkpoint,
-    save_step_checkpoint,
     step_name,
 )
 from qlap_runtime.qlap.learner import ModelLearner
 from qlap_runtime.qlap.perception import Percept
 from qlap_runtime.qlap.plan_delta import PlanDelta
 from qlap_runtime.runtime.actor import Actor, Resume
-from qlap_runtime.runtime.background import Background
+from qlap_runtime.runtime.background import CheckpointWriter
 from qlap_runtime.runtime.context import RunContext, world_variables
 from qlap_runtime.runtime.controls import RunControl
 from qlap_runtime.runtime.lockstep import DeltaBook, batch_kinds
@@ -196,7 +194,7 @@ class Files:
         """The observations rejected (``step t: why``), a snapshot's ones first."""
         # The last periodic checkpoint: (agent step, agent commands applied by then, its path).
         self.last_saved: tuple[int, int, Path | None] = (-1, -1, None)
-        self.writer = Background("checkpoint")
+        self.writer = CheckpointWriter()
         """Writes the periodic checkpoints off the step chain (docs/decisions.md 81)."""
         self.deferred: tuple[Path, int, int | None] | None = None
         """The run's last step's checkpoint, written by :meth:`flush` (decision 87)."""
@@ -211,9 +209,8 @@ class Files:
             root, keep = Path(ctx.out) / "checkpoints", ctx.keep_checkpoints
             if keep != 0 and t + 1 == ctx.end:  # the last step: no copy, see flush
                 self.deferred = (root, t + 1, keep)
-            elif keep != 0:                     # a deep copy now, written in the writer's thread
-                self.writer.start(save_step_checkpoint, copy.deepcopy(agent), root, t + 1,
-                                  ctx.world, keep)
+            else:                               # a deep copy now, written in the writer's thread
+                self.writer.save(agent, root, t + 1, ctx.world, keep)
             self.last_saved = (agent.step_count, changes,
                                None if keep == 0 else root / step_name(t + 1))
 
@@ -224,8 +221,7 @@ class Files:
         if self.deferred is not None:
             root, step, keep = self.deferred
             self.deferred = None
-            self.writer.wait()
-            save_step_checkpoint(self.agent, root, step, self.ctx.world, keep)
+            self.writer.save(self.agent, root, step, self.ctx.world, keep, copy_agent=False)
 
     def result(self, steps_done: int, quit_at: int | None) -> dict[str, Any]:
         """The executor's part of its result."""

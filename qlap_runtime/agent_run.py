@@ -26,10 +26,10 @@ from .qlap.checkpoint import (
     atomic_write_json,
     load_agent,
     save_final_checkpoint,
-    save_step_checkpoint,
     world_state_of,
 )
 from .qlap.perception import InvalidObservation
+from .runtime.background import CheckpointWriter
 
 ProgressFn = Callable[[int, Agent], None]
 
@@ -71,7 +71,9 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     :class:`WorldFailed` is raised.
 
     Checkpoints carry the world's state (``world.json``,
-    :func:`~.qlap.checkpoint.world_state_of`). ``restored``: the world was set to a
+    :func:`~.qlap.checkpoint.world_state_of`); a copy of the agent is written in a thread of
+    its own while the loop goes on (``runtime.background.CheckpointWriter``, docs/decisions.md
+    107). ``restored``: the world was set to a
     checkpoint's state (``restore_world``) and continues from it instead of ``reset(seed)``:
     with the checkpoint's agent the run is then the uninterrupted one's.
     """
@@ -87,6 +89,7 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
                          start=start, every=metrics_every, on_line=on_metrics) \
         if out is not None or on_metrics is not None else None
     last_saved: tuple[int, Path | None] = (-1, None)
+    writer = CheckpointWriter()
     failed: WorldFailed | None = None
     done = steps
     t0 = time.perf_counter()
@@ -108,11 +111,16 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
             if metrics is not None:
                 metrics.after_step(t + 1, agent)
             if ckpts is not None and (t + 1) % checkpoint_every == 0:
-                last_saved = (t, save_step_checkpoint(agent, ckpts, t + 1, world_spec,
-                                                      keep_checkpoints, world_state_of(world)))
+                last_saved = (t, writer.save(agent, ckpts, t + 1, world_spec, keep_checkpoints,
+                                             world_state_of(world),
+                                             copy_agent=t + 1 < start + steps))
+        writer.wait()                     # a checkpoint's error (a full disk) stops the run here
         wall = time.perf_counter() - t0
         if metrics is not None:
             metrics.finish(start + done, agent)
+    except BaseException:
+        writer.join()                     # the write in flight ends; the first error is raised
+        raise
     finally:
         if metrics is not None:
             metrics.close()

@@ -100,6 +100,39 @@ def test_retention_keeps_the_newest_n_and_final_links_to_the_last(tmp_path):
     assert os.readlink(ck / "final") == "step-0005000"
 
 
+def test_a_periodic_checkpoint_written_off_the_loop_is_the_agent_of_its_step(tmp_path):
+    """docs/decisions.md 107: the synchronous loop writes a copy of the agent in a thread of
+    its own and goes on; the files are those of the agent at that step, byte for byte, though
+    the loop went on for 1,500 steps more."""
+    sync_run(tmp_path / "run", 2500)
+    at_1000, _ = sync_run(None, 1000)
+    save_agent(at_1000, tmp_path / "direct", WORLD)
+    written = tmp_path / "run" / "checkpoints" / "step-0001000"
+    for name in ("agent.json", "learner.json"):
+        assert (written / name).read_bytes() == (tmp_path / "direct" / name).read_bytes()
+    assert load_agent(written).step_count == 999
+
+
+def test_a_checkpoint_that_cannot_be_written_stops_the_run_with_its_error(tmp_path,
+                                                                          monkeypatch):
+    """A full disk in the writer's thread is not lost: the run stops with that error at the
+    next checkpoint or at the end (decision 107), after the checkpoints before it."""
+    from qlap_runtime.runtime import background
+
+    real = background.save_step_checkpoint
+
+    def full_disk_at_2000(agent, root, step, *args):
+        if step == 2000:
+            raise OSError(28, "No space left on device")
+        return real(agent, root, step, *args)
+
+    monkeypatch.setattr(background, "save_step_checkpoint", full_disk_at_2000)
+    with pytest.raises(OSError, match="No space left"):
+        sync_run(tmp_path / "run", 2500)
+    assert (tmp_path / "run" / "checkpoints" / "step-0001000" / "agent.json").is_file()
+    assert not (tmp_path / "run" / "knowledge.json").exists()
+
+
 def test_final_is_a_directory_when_it_differs_and_a_marker_where_links_fail(tmp_path,
                                                                             monkeypatch):
     from qlap_runtime.analysis.runs import find_checkpoints, load_knowledge

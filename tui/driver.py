@@ -40,6 +40,7 @@ from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import RejectionCounter, declare_alive
 from qlap_runtime.bus.config import embedded_config
 from qlap_runtime.bus.schema import Control
+from qlap_runtime.runtime.background import CheckpointWriter
 from qlap_runtime.runtime.controls import RunControl
 from qlap_runtime.runtime.runner import Display, Runner
 
@@ -105,6 +106,8 @@ class LocalDriver:
         """Applies the controls (the contract the executor actor shares)."""
         self.display: Display | None = None
         self._last_saved: tuple[int, int, Path | None] = (-1, -1, None)
+        self._writer = CheckpointWriter()
+        """Writes the periodic checkpoints off this loop (docs/decisions.md 107)."""
         self._rejected: list[str] = []
         self._outputs_written = False
         self.cadence = cadence or telemetry.Cadence()
@@ -319,13 +322,14 @@ class LocalDriver:
         if self._metrics is not None:
             self._metrics.after_step(t + 1, self.agent)
         if self.out is not None and (t + 1) % self.checkpoint_every == 0:
-            from qlap_runtime.qlap.checkpoint import save_step_checkpoint, world_state_of
+            from qlap_runtime.qlap.checkpoint import world_state_of
 
+            last = self.steps is not None and self.steps_done >= self.steps
             self._last_saved = (self.agent.step_count, self.runner.agent_changes,
-                                save_step_checkpoint(self.agent, self.out / "checkpoints",
-                                                     t + 1, self.world_spec,
-                                                     self.keep_checkpoints,
-                                                     world_state_of(self.world)))
+                                self._writer.save(self.agent, self.out / "checkpoints", t + 1,
+                                                  self.world_spec, self.keep_checkpoints,
+                                                  world_state_of(self.world),
+                                                  copy_agent=not last))
 
     def write_outputs(self) -> None:
         """``knowledge.json``, ``summary.json``, the metrics log's last line and
@@ -342,6 +346,7 @@ class LocalDriver:
 
         self._outputs_written = True
         agent = self.agent
+        self._writer.wait()                              # the periodic checkpoint in flight
         wall = time.perf_counter() - self._started
         if self._metrics is not None:
             self._metrics.finish(agent.step_count + 1, agent)
