@@ -21,6 +21,7 @@ link to it (a small marker file naming it where links cannot be made);
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import lzma
@@ -28,11 +29,12 @@ import os
 import re
 import shutil
 import tempfile
+import time
 import zipfile
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -70,14 +72,17 @@ class CheckpointError(ValueError):
     """A checkpoint that cannot be read (missing, corrupt, wrong format or version)."""
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and a rename."""
+@contextlib.contextmanager
+def atomic_file(path: Path) -> Iterator[BinaryIO]:
+    """A binary file that becomes ``path`` when the block ends without an error: written as a
+    temporary file in the same directory, flushed to disk, then renamed over ``path``; on an
+    error the temporary file is removed and ``path`` is left as it was."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            yield f
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
@@ -85,6 +90,12 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same directory and a rename."""
+    with atomic_file(path) as f:
+        f.write(data)
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
@@ -182,20 +193,24 @@ deflate for a second or two per checkpoint."""
 def _write_npz(path: Path, arrays: dict[str, np.ndarray], fast: bool = False) -> None:
     """An npz (a zip of ``.npy`` files, deflated, as ``np.savez_compressed`` writes it), with
     the :data:`XZ_ARRAYS` stored as ``.npy.xz`` entries instead; ``fast``: stored, not
-    compressed (``np.savez``)."""
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", allowZip64=True) as zf:
+    compressed (``np.savez``). Each array is streamed into its entry, compressed on the way,
+    into the file itself (:func:`atomic_file`): no copy of it is held in memory, neither
+    plain nor compressed (docs/decisions.md 108)."""
+    with atomic_file(path) as f, zipfile.ZipFile(f, "w", allowZip64=True) as zf:
         for key, value in arrays.items():
-            npy = io.BytesIO()
-            np.lib.format.write_array(npy, np.asanyarray(value), allow_pickle=False)
-            if fast:
-                zf.writestr(f"{key}.npy", npy.getvalue(), compress_type=zipfile.ZIP_STORED)
-            elif key in XZ_ARRAYS:
-                zf.writestr(f"{key}.npy.xz", lzma.compress(npy.getvalue(), preset=0),
-                            compress_type=zipfile.ZIP_STORED)
-            else:
-                zf.writestr(f"{key}.npy", npy.getvalue(), compress_type=zipfile.ZIP_DEFLATED)
-    atomic_write_bytes(path, buf.getvalue())
+            array = np.asanyarray(value)
+            xz = not fast and key in XZ_ARRAYS
+            info = zipfile.ZipInfo(f"{key}.npy.xz" if xz else f"{key}.npy",
+                                   date_time=time.localtime(time.time())[:6])
+            info.compress_type = zipfile.ZIP_DEFLATED if not (fast or xz) else zipfile.ZIP_STORED
+            info.external_attr = 0o600 << 16            # as ZipFile.writestr gives an entry
+            big = array.nbytes > zipfile.ZIP64_LIMIT // 2   # its size is not known up front
+            with zf.open(info, "w", force_zip64=big) as entry:
+                if xz:
+                    with lzma.LZMAFile(entry, "w", preset=0) as packed:
+                        np.lib.format.write_array(packed, array, allow_pickle=False)
+                else:
+                    np.lib.format.write_array(entry, array, allow_pickle=False)
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
