@@ -71,6 +71,7 @@ from .plan_delta import (
     SkipPlan,
 )
 from .planner import (
+    ModelMemo,
     Plan,
     PlanGroups,
     PlanTooLarge,
@@ -185,6 +186,9 @@ class Agent:
         self._seen_applied = 0
         self._last_percept: Percept | None = None
         self.pending_plans: deque[PlanDelta] = deque()
+        self.model_memo: ModelMemo | None = ModelMemo()
+        """The models of the last compilation, shared with its planning copy (decision 109);
+        None: every build makes its own."""
         """Plan deltas computed at a batch step t, applied at t + L (:meth:`compile_plans`)."""
         self._compiling: list[PlanOp] | None = None
         """While :meth:`compile_plans` runs: the operations recorded so far."""
@@ -288,6 +292,8 @@ class Agent:
         what has no learned values. Returns what it did, for :meth:`apply_plans` at
         ``apply_at``."""
         value_maps = self._follow_landmarks()
+        if self.model_memo is not None:
+            self.model_memo.clear()             # this compilation's models only
         self._compiling = ops = []
         try:
             # Plans whose DBN disappeared are removed; the others follow their DBN's structure.
@@ -489,7 +495,8 @@ class Agent:
         sizes = self._sizes()
         return plan.build(dbn, sizes, self._rel_action,
                           dbn_rel_state(dbn, sizes, self.params.prior), fresh=fresh,
-                          value_maps=value_maps, usable=self._usable, planned=planned)
+                          value_maps=value_maps, usable=self._usable, planned=planned,
+                          memo=self.model_memo)
 
     def _refresh(self, plan: Plan) -> None:
         dbn = self.learner.dbns.get(plan.dbn_id)

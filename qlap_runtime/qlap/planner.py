@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -57,6 +58,35 @@ def plan_entries(context_o, dbn: DBN, sizes) -> int:
     n_states = int(np.prod([int(sizes[v]) for v in vars_]))
     n_actions = sum(int(sizes[v]) for v in vars_) + 1
     return n_states * n_actions
+
+
+class ModelMemo:
+    """The transition models a compilation built, by what each is a function of (a plan's
+    structure and the reliabilities it read), so that the executor's rebuild of the same plan
+    with the same inputs takes the model instead of building it again (docs/decisions.md 109).
+    Shared by an agent and its planning copies; a deep copy (a checkpoint's) starts empty."""
+
+    def __init__(self) -> None:
+        self._models: dict[tuple, TransitionModel] = {}
+        self.hits = 0
+        """How many builds took a model from here (for tests and benchmarks)."""
+
+    def get(self, key: tuple) -> TransitionModel | None:
+        model = self._models.get(key)
+        self.hits += model is not None
+        return model
+
+    def put(self, key: tuple, model: TransitionModel) -> None:
+        self._models[key] = model
+
+    def clear(self) -> None:
+        self._models.clear()
+
+    def __len__(self) -> int:
+        return len(self._models)
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> ModelMemo:
+        return ModelMemo()
 
 
 class Plan:
@@ -110,7 +140,8 @@ class Plan:
     def build(self, dbn: DBN, sizes: Mapping[int, int] | list[int], rel_action: RelAction,
               rel_model: Callable[[PlanStateSpace], np.ndarray], fresh: bool = False,
               value_maps: Mapping[int, np.ndarray] | None = None,
-              usable: Usable | None = None, planned: np.ndarray | None = None) -> bool:
+              usable: Usable | None = None, planned: np.ndarray | None = None,
+              memo: ModelMemo | None = None) -> bool:
         """(Re)build the MDP from the DBN's current structure; keep Q if the space is unchanged.
 
         A fresh plan is planned by value iteration (§5.2.2). When the state space or the action
@@ -124,7 +155,8 @@ class Plan:
 
         ``planned``: Q* of the new model computed elsewhere (a plan compilation, §5.2.2), used
         instead of value iteration here when it has the model's shape; :attr:`last_planned`
-        is the Q* this build computed itself (None when it needed none).
+        is the Q* this build computed itself (None when it needed none). ``memo``: models
+        built elsewhere from the same inputs (:class:`ModelMemo`), and where this one goes.
         """
         self.last_planned = None
         g = dbn.consequent                       # landmarks may have renumbered it
@@ -159,7 +191,7 @@ class Plan:
             # read by Dyna and value iteration alone, which get the model anew with the
             # reliabilities of their time (refresh; a structure change): left until then.
             return False
-        self.model = self._model(rel_action, rel_model, usable)
+        self.model = self._model(rel_action, rel_model, usable, memo)
         if not same:
             model, params = self.model, self.params
 
@@ -177,7 +209,8 @@ class Plan:
             self.sarsa = SarsaLambda(self.q, self.params)
         return not same
 
-    def _model(self, rel_action: RelAction, rel_model, usable: Usable | None) -> TransitionModel:
+    def _model(self, rel_action: RelAction, rel_model, usable: Usable | None,
+               memo: ModelMemo | None = None) -> TransitionModel:
         assert self.space is not None
         assert self.spec is not None
         space = self.space
@@ -196,6 +229,10 @@ class Plan:
             model = cached[2].with_reliabilities(rel_a, rel_r)
             self._model_cache = (structure, rels, model)
             return model
+        known = memo.get((structure, rels)) if memo is not None else None
+        if known is not None:                    # built from these very inputs (decision 109)
+            self._model_cache = (structure, rels, known)
+            return known
         vals = space.all_values()
         # §5.2.1 rule 2 as a mask: reaching a(v, q) on a magnitude would need the very change
         # this plan is for (e.g. ⟨{Y}: X→x ⇒ Ẏ→[+]⟩ with Y below q needs Ẏ = [+]).
@@ -214,6 +251,8 @@ class Plan:
                 regress[:, j] = True             # e.g. a motor value out of the motor's range
         model = TransitionModel.build(space, self.actions, self.spec, rel_a, rel_r, regress)
         self._model_cache = (structure, rels, model)
+        if memo is not None:
+            memo.put((structure, rels), model)
         return model
 
     def _flags(self, usable: Usable | None) -> tuple[bool, ...]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import gc
 import json
@@ -763,6 +764,22 @@ def test_a_planning_copy_is_freed_as_soon_as_it_is_dropped(trained):
         assert gone_agent() is None and gone_learner() is None
     finally:
         gc.enable()
+
+
+def test_the_executor_takes_the_models_its_compilation_built():
+    """Decision 109: when the agent rebuilds a plan with the inputs its compilation's copy had
+    (the synchronous loop, L = 0), it takes the transition model the copy built instead of
+    building it again — and learns exactly what an agent that builds every model learns."""
+    memo, own = Agent(SPECS, PARAMS, seed=0), Agent(SPECS, PARAMS, seed=0)
+    own.model_memo = None
+    run(memo, ToyWorld(), 0, 20_000)
+    run(own, ToyWorld(), 0, 20_000)
+    assert memo.plans and memo.model_memo is not None and memo.model_memo.hits > 0
+    assert json.dumps(memo.knowledge()) == json.dumps(own.knowledge())
+    assert sorted(memo.plans) == sorted(own.plans)
+    for pid, plan in memo.plans.items():
+        np.testing.assert_array_equal(plan.q, own.plans[pid].q)
+    assert len(copy.deepcopy(memo).model_memo) == 0          # a checkpoint's copy: empty
 
 
 def test_plan_reliable_dbn_counts_a_plan_whose_dbn_is_sufficiently_reliable():
