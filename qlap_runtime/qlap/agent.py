@@ -186,10 +186,10 @@ class Agent:
         self._seen_applied = 0
         self._last_percept: Percept | None = None
         self.pending_plans: deque[PlanDelta] = deque()
+        """Plan deltas computed at a batch step t, applied at t + L (:meth:`compile_plans`)."""
         self.model_memo: ModelMemo | None = ModelMemo()
         """The models of the last compilation, shared with its planning copy (decision 109);
         None: every build makes its own."""
-        """Plan deltas computed at a batch step t, applied at t + L (:meth:`compile_plans`)."""
         self._compiling: list[PlanOp] | None = None
         """While :meth:`compile_plans` runs: the operations recorded so far."""
 

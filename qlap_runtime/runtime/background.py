@@ -77,12 +77,11 @@ class CheckpointWriter:
         more (the run's last step), so it is written from the agent itself, at once."""
         if keep == 0:
             return None
+        self.background.wait()                # the write before: one copy alive at a time
         if copy_agent:
-            self.background.wait()            # one copy alive at a time, not two
             self.background.start(save_step_checkpoint, copy.deepcopy(agent), root, step,
                                   world, keep, world_state)
         else:
-            self.background.wait()
             save_step_checkpoint(agent, root, step, world, keep, world_state)
         return Path(root) / step_name(step)
 
