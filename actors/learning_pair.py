@@ -54,12 +54,14 @@ async def run_handed(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]
     HANDED`). The pair then takes only those copies — no ``qstate``, no deltas, no per-step
     learning — and computes the batch on each, with ``batchctx(t − 1)`` as before; the
     executor writes the checkpoints' statistics part. With ``QLAP_BATCH_PROCESS=1`` the
-    batches compute in a worker process (docs/decisions.md 80), else in threads."""
+    batches compute in a worker process (docs/decisions.md 80); otherwise in this task in
+    lockstep (decision 110) and in threads under the realtime clock."""
     HANDED.discard(ctx.run_id)                  # an earlier run's, of the same id
     with LearnerActor(session, ctx, "contingency", handed=True) as host, \
             LearnerActor(session, ctx, "landmarks", handed=True) as guest, ExitStack() as stack:
         if wanted():
             host.batches.process = process = BatchProcess()
+            host.batches.inline = False         # off the task, to that process
             stack.callback(process.close)
         await host.start()
         await guest.start()

@@ -106,13 +106,14 @@ class Batches:
         self.contexts = actor.input("batchctx", window=ctx.replay_keep,
                                     rule=batchctx_rule(n_vars), first=actor.resume.step)
         self.out = DeltaOutbox(actor, kind)
-        self.inline = not ctx.realtime and (ctx.params.batch_lag == 0
-                                            or not ctx.together(actor.name, "world"))
-        """The batch is computed in the actor's task, before its step ends: with L = 0 in
-        lockstep (Algorithm 2), and in lockstep whenever the actor does not share the step
-        chain's process (docs/decisions.md 92): a worker thread would only share this
-        process's GIL with the steps after t, which nothing waits for, while the chain waits
-        for the batch's delta at t + L."""
+        self.inline = not ctx.realtime
+        """The batch is computed in the actor's task, before its step ends, whenever the clock
+        is lockstep: with L = 0 (Algorithm 2), in a process of its own (docs/decisions.md 92)
+        and beside the step chain too (decision 110). A worker thread only shares the
+        process's GIL — with the steps after t, which nothing waits for, or with the step
+        chain, which then pays the batch, the switching and the cache it loses, and waits for
+        the batch's delta at t + L all the same. Under the realtime clock (a tick must not wait
+        for a batch) and with a worker process (:attr:`process`) the batches go off the task."""
         self.times: list[float] = []
         self.process: BatchProcess | None = None
         """The worker process the batches in the background go to (docs/decisions.md 80;

@@ -34,12 +34,12 @@ def test_a_batch_copy_keeps_its_history_while_the_learner_goes_on():
     assert not np.array_equal(live_x, hx, equal_nan=True)
 
 
-async def test_a_batch_computes_in_the_actors_task_unless_it_shares_the_step_chains_gil():
-    """In lockstep a learning actor in a process of its own (the processes placement's
-    learners, one actor per process, a distributed actor) computes its batches in its task:
-    a worker thread would share its GIL with nothing the run waits for. Beside the step chain
-    (embedded) and under the realtime clock they stay in worker threads; L = 0 is inline
-    everywhere (docs/decisions.md 92)."""
+async def test_a_batch_computes_in_the_actors_task_unless_the_clock_is_realtime():
+    """In lockstep a learning actor computes its batches in its task, in a process of its own
+    (the processes placement's learners, one actor per process, a distributed actor:
+    docs/decisions.md 92) and beside the step chain (embedded, decision 110): a worker thread
+    would only share the GIL. Under the realtime clock they go to worker threads, whatever
+    the lag."""
     import zenoh
 
     from qlap_runtime.bus import embedded_config
@@ -56,6 +56,7 @@ async def test_a_batch_computes_in_the_actors_task_unless_it_shares_the_step_cha
 
     with zenoh.open(embedded_config()) as session:
         assert inline(LAYOUTS["two"]) and inline(LAYOUTS["each"]) and inline(())
-        assert not inline((ACTORS,))                                # embedded
+        assert inline((ACTORS,)) and inline((ACTORS,), lag=0)       # embedded
         assert not inline(LAYOUTS["two"], clock="realtime")
-        assert inline((ACTORS,), lag=0)
+        assert not inline((ACTORS,), clock="realtime")
+        assert not inline((ACTORS,), clock="realtime", lag=0)
