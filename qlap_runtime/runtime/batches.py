@@ -1,8 +1,9 @@
 """A learner's batches as the actors run them (Algorithm 2 lines 6–13; docs/runtime.md,
 Lockstep).
 
-A batch at step t is computed on a copy of the learner — in a worker thread when L > 0 (or
-under the realtime clock), so that the actor keeps consuming steps — and its parts are
+A batch at step t is computed on a copy of the learner — in the actor's task in lockstep
+(the chain waits for its delta at t + L anyway; docs/decisions.md 92, 110), in a worker thread
+under the realtime clock, so that no tick waits for it — and its parts are
 published as deltas that every consumer applies at the boundary of t + L. A
 :class:`DeltaOutbox` publishes one kind of delta, keeps it in the actor's replay log until
 every consumer has applied it (a restarted consumer fetches what it missed) and shows the
