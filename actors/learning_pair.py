@@ -61,7 +61,6 @@ async def run_handed(session: Any, ctx: RunContext) -> dict[str, dict[str, Any]]
             LearnerActor(session, ctx, "landmarks", handed=True) as guest, ExitStack() as stack:
         if wanted():
             host.batches.process = process = BatchProcess()
-            host.batches.inline = False         # off the task, to that process
             stack.callback(process.close)
         await host.start()
         await guest.start()

@@ -107,21 +107,24 @@ class Batches:
         self.contexts = actor.input("batchctx", window=ctx.replay_keep,
                                     rule=batchctx_rule(n_vars), first=actor.resume.step)
         self.out = DeltaOutbox(actor, kind)
-        self.inline = not ctx.realtime
-        """The batch is computed in the actor's task, before its step ends, whenever the clock
-        is lockstep: with L = 0 (Algorithm 2), in a process of its own (docs/decisions.md 92)
-        and beside the step chain too (decision 110). A worker thread only shares the
-        process's GIL — with the steps after t, which nothing waits for, or with the step
-        chain, which then pays the batch, the switching and the cache it loses, and waits for
-        the batch's delta at t + L all the same. Under the realtime clock (a tick must not wait
-        for a batch) and with a worker process (:attr:`process`) the batches go off the task."""
         self.times: list[float] = []
         self.process: BatchProcess | None = None
-        """The worker process the batches in the background go to (docs/decisions.md 80;
-        None: a worker thread)."""
+        """The worker process the batches go to (docs/decisions.md 80; None: :attr:`inline`
+        says where)."""
         self.away = 0
         """Batches computed in :attr:`process`."""
         self.away_mib: float | None = None
+
+    @property
+    def inline(self) -> bool:
+        """The batch is computed in the actor's task, before its step ends, whenever the clock
+        is lockstep and no worker process (:attr:`process`) takes it: with L = 0 (Algorithm
+        2), in a process of its own (docs/decisions.md 92) and beside the step chain too
+        (decision 110). A worker thread only shares the process's GIL — with the steps after
+        t, which nothing waits for, or with the step chain, which then pays the batch, the
+        switching and the cache it loses, and waits for the batch's delta at t + L all the
+        same. Under the realtime clock a tick must not wait for a batch: worker threads."""
+        return not self.ctx.realtime and self.process is None
 
     async def context(self, t: int) -> BatchContext | None:
         """The executor's state the batch at ``t`` reads (:func:`context_before`)."""
