@@ -89,8 +89,11 @@ def main() -> None:
             s = placements[name](ctx)
             batches = sum(a.get("batches", 0) for a in s["actors"].values())
             world = s["actors"].get("world", {})
+            where = "; ".join(f"before step {t}, {ms} ms after the loop woke"
+                              for t, ms in s.get("missed_at") or [])
             print(f"  {name:10s} late ticks {s.get('late_ticks')}, missed ticks "
-                  f"{s.get('missed_ticks')}, lateness p50 {s.get('lateness_p50_ms')} ms, p99 "
+                  f"{s.get('missed_ticks')}{f' ({where})' if where else ''}, lateness p50 "
+                  f"{s.get('lateness_p50_ms')} ms, p99 "
                   f"{s.get('lateness_p99_ms')} ms, max {s.get('lateness_max_ms')} ms "
                   f"({batches} batches computed; full garbage collections at the end "
                   f"{world.get('full_collections')}, {world.get('gc_collected')} objects freed)",

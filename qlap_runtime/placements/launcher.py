@@ -242,6 +242,18 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+BATCH_NICENESS = 10
+"""Under the realtime clock a process without the world (the learners' batches) runs this much
+nicer than the step chain's, so that the kernel gives a core to the chain first."""
+
+
+def niceness_for(names: tuple[str, ...], ctx: Any) -> int:
+    """How much nicer the process of the actors ``names`` runs (docs/decisions.md 111): under the
+    realtime clock a process without the world yields the cores to the step chain's; in
+    lockstep every process is on the chain's path (a batch's delta is waited for), so none."""
+    return BATCH_NICENESS if ctx.realtime and "world" not in names else 0
+
+
 def _actor_process(names: tuple[str, ...], ctx_json: str, endpoint: str, result_path: str,
                    slots: dict[str, Any] | None = None, password: str | None = None) -> None:
     """Entry point of a process group's process (spawned: no state inherited): the actors
@@ -263,6 +275,7 @@ def _actor_process(names: tuple[str, ...], ctx_json: str, endpoint: str, result_
 
         ctx = ctx.with_(board=Board(names, slots))
     parent = os.getppid()
+    niceness = os.nice(niceness_for(names, ctx))
 
     async def watch(cancel: trio.CancelScope) -> None:
         with trio.open_signal_receiver(signal.SIGTERM) as signals:
@@ -279,6 +292,8 @@ def _actor_process(names: tuple[str, ...], ctx_json: str, endpoint: str, result_
                           watch, 60)
         if result is None:
             raise SystemExit(143)                   # stopped before the end of the run
+        for actor in result.values():
+            actor["niceness"] = niceness
         atomic_write_json(Path(result_path), result)
     except Exception as exc:
         # One line for the supervisor (it decides whether a restart can help, and says why
@@ -496,8 +511,8 @@ def _finish(ctx: Any, placement: str, results: dict[str, Any], wall: float,
         # Start-up excluded (spawning, imports, sessions): the rate of the step chain itself.
         summary["loop_s"] = world["loop_s"]
         summary["loop_steps_per_s"] = round(world.get("steps", ctx.steps) / world["loop_s"], 1)
-    for key in ("hz", "late_ticks", "missed_ticks", "lateness_p50_ms", "lateness_p99_ms",
-                "lateness_max_ms"):
+    for key in ("hz", "late_ticks", "missed_ticks", "missed_at", "lateness_p50_ms",
+                "lateness_p99_ms", "lateness_max_ms"):
         if key in world:
             summary[key] = world[key]
     if ctx.out is not None:

@@ -171,6 +171,8 @@ NO_FULL_COLLECTION = 1 << 30
 collections before a full one that none comes (:meth:`RealtimeClock.collect_fully`)."""
 SWITCH_INTERVAL_S = 0.0005
 """The GIL switch interval under the realtime clock (Python's default is 5 ms)."""
+MISSED_AT_KEPT = 20
+"""How many places of missed ticks the realtime clock's summary lists."""
 
 
 async def sleep_until_precisely(deadline: float) -> None:
@@ -199,6 +201,12 @@ class RealtimeClock(LockstepClock):
         self.tick0 = trio.current_time()
         self.tick = 0
         self.missed = 0
+        self.woke = self.tick0
+        """When the loop last woke up for its tick."""
+        self.missed_at: list[tuple[int, float]] = []
+        """Where ticks were skipped: (step, milliseconds since the loop's previous wake-up).
+        Under a period: the wake-up itself came late (the machine); over it: the step's work
+        (or the process kept off a core during it) overran."""
         self.late = 0
         self.lateness: list[float] = []
         self.switch_interval = sys.getswitchinterval()
@@ -257,10 +265,12 @@ class RealtimeClock(LockstepClock):
         if now > deadline + self.period:
             skipped = int((now - deadline) // self.period)
             self.missed += skipped
+            self.missed_at.append((t, round((now - self.woke) * 1e3, 1)))
             self.tick += skipped
             deadline = self.tick0 + self.tick * self.period
         await sleep_until_precisely(deadline)
-        self.lateness.append(trio.current_time() - deadline)
+        self.woke = trio.current_time()
+        self.lateness.append(self.woke - deadline)
         self.tick += 1
         return True
 
@@ -280,6 +290,7 @@ class RealtimeClock(LockstepClock):
             return {}
         ms = sorted(x * 1e3 for x in self.lateness)
         return {"hz": 1.0 / self.period, "late_ticks": self.late, "missed_ticks": self.missed,
+                "missed_at": [list(m) for m in self.missed_at[:MISSED_AT_KEPT]],
                 "full_collections": self.full_collections, "gc_collected": self.collected,
                 "lateness_p50_ms": round(ms[len(ms) // 2], 3),
                 "lateness_p99_ms": round(ms[min(len(ms) - 1, int(len(ms) * 0.99))], 3),
