@@ -89,8 +89,8 @@ def main() -> None:
             s = placements[name](ctx)
             batches = sum(a.get("batches", 0) for a in s["actors"].values())
             world = s["actors"].get("world", {})
-            where = "; ".join(f"before step {t}, {ms} ms after the loop woke"
-                              for t, ms in s.get("missed_at") or [])
+            where = "; ".join(f"step {t}: woke {late} ms late, back after {work} ms"
+                              for t, late, work in s.get("missed_at") or [])
             print(f"  {name:10s} late ticks {s.get('late_ticks')}, missed ticks "
                   f"{s.get('missed_ticks')}{f' ({where})' if where else ''}, lateness p50 "
                   f"{s.get('lateness_p50_ms')} ms, p99 "

@@ -203,10 +203,10 @@ class RealtimeClock(LockstepClock):
         self.missed = 0
         self.woke = self.tick0
         """When the loop last woke up for its tick."""
-        self.missed_at: list[tuple[int, float]] = []
-        """Where ticks were skipped: (step, milliseconds since the loop's previous wake-up).
-        Under a period: the wake-up itself came late (the machine); over it: the step's work
-        (or the process kept off a core during it) overran."""
+        self.missed_at: list[tuple[int, float, float]] = []
+        """Where ticks were skipped: (step, how late the loop woke for the step before, in
+        ms, and how long it then took to come back, in ms). A late wake-up is the machine (or
+        another process on the cores); a long way back is the step's own work."""
         self.late = 0
         self.lateness: list[float] = []
         self.switch_interval = sys.getswitchinterval()
@@ -265,7 +265,8 @@ class RealtimeClock(LockstepClock):
         if now > deadline + self.period:
             skipped = int((now - deadline) // self.period)
             self.missed += skipped
-            self.missed_at.append((t, round((now - self.woke) * 1e3, 1)))
+            woke_late = self.lateness[-1] if self.lateness else 0.0
+            self.missed_at.append((t, round(woke_late * 1e3, 1), round((now - self.woke) * 1e3, 1)))
             self.tick += skipped
             deadline = self.tick0 + self.tick * self.period
         await sleep_until_precisely(deadline)
