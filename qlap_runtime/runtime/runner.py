@@ -159,6 +159,8 @@ class Display:
         self.cadence = cadence or telemetry.Cadence()
         self.t0 = time.perf_counter()
         self.finished_at: float | None = None
+        self.first: tuple[float, int] | None = None
+        """(time, agent step) of the first status: a finished run's rate is its mean since."""
         topics = DISPLAY_TOPICS + (("world",) if world_view is not None else ())
         self.pubs = {topic: Publisher(session, run_id, topic) for topic in topics}
 
@@ -170,8 +172,15 @@ class Display:
     def status(self, agent: Any, clock: RunControl, *, clock_name: str, now: float,
                late_ticks: int = 0, missed_ticks: int = 0) -> Any:
         finished = self.finished_at is not None
+        if self.first is None:
+            self.first = (now, agent.step_count)
+        rate = self.cadence.steps_per_s(now, agent.step_count)
+        if finished:                            # no steps in the last second: say the mean
+            t, step = self.first
+            rate = (agent.step_count - step) / (self.finished_at - t) \
+                if self.finished_at > t else 0.0
         return telemetry.status_msg(
-            agent, steps_per_s=self.cadence.steps_per_s(now, agent.step_count),
+            agent, steps_per_s=rate,
             paused=clock.paused and not finished, finished=finished, speed=clock.speed,
             clock=clock_name, placement=self.placement, world=self.world, seed=self.seed,
             late_ticks=late_ticks, missed_ticks=missed_ticks,

@@ -73,8 +73,14 @@ async def test_display_publishes_the_status_a_viewer_reads(embedded):
         assert isinstance(status, AgentStatus)
         assert status.paused and status.message == "paused" and status.world == "core2d"
         assert status.step == a.step_count and not status.finished
+        await trio.sleep(0.05)
+        a.step_count += 50                      # 50 steps since the first status, then done
         d.finish()
         d.publish(a, clock, clock_name="lockstep", force=True)
         with trio.fail_after(10):
             batch = await sub.receive_batch()
         assert batch[-1].msg.finished and not batch[-1].msg.paused
+        # A finished run shows its mean rate, not the last second's (no steps: 0).
+        t, step = d.first
+        assert step == a.step_count - 50
+        assert batch[-1].msg.steps_per_s == round(50 / (d.finished_at - t), 1) > 0
