@@ -43,11 +43,16 @@ def run_trials(
     ``failures`` (trials ended early), ``timeouts``, ``mean_steps``, and ``by_goal``: the same
     counts for each goal a trial started with (``"T_L.dot=+"``; move_block draws one of three,
     §7.2.2 footnote 2), so that a weak goal shows.
+
+    The trials' set-ups (block, hand, goal) draw from ``seed`` alone and the policy from a
+    stream of its own (``SeedSequence(seed, spawn_key=(1,))``), so every policy — the agent at
+    each checkpoint, the random baseline, a tile coder — meets the same set-ups.
     """
     if task_name not in world.tasks:
         raise ValueError(f"{world.name} has no task {task_name!r}; tasks: {sorted(world.tasks)}")
     task = world.tasks[task_name]
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(seed)               # the set-ups: the same for every policy
+    policy_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
     rewards: list[float] = []
     steps_taken: list[int] = []
     successes = failures = timeouts = 0
@@ -62,7 +67,7 @@ def run_trials(
         while steps < task.max_steps:
             goal = task.goal(world, obs)
             first = first or goal
-            obs = world.step(policy(world, obs, goal, rng))
+            obs = world.step(policy(world, obs, goal, policy_rng))
             steps += 1
             if task.is_success(world, obs):
                 total += task.success_reward
