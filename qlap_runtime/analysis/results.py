@@ -600,7 +600,8 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
           "checkpoints and at the "
           "end, as the mean over the seeds ± its standard error across seeds (§7.3: \"all "
           "error bars are standard error\"); the success rate is the mean over the seeds. The "
-          "random policy is evaluated once on the same world, task, trials and trial seed.",
+          "random policy is evaluated once on the same world, task, trials and trial seed: it "
+          "meets the agent's set-ups (docs/decisions.md 112).",
           "", T.note, ""]
     for t in tasks:
         L += _task_section(t, images.get(t.task), T)
