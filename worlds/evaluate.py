@@ -2,8 +2,9 @@
 
 ``run_random_trials(world, task_name, n_trials, seed)`` runs ``n_trials`` trials of a task with
 a policy that draws every motor uniformly from its range at each step (or holds the motors at 0
-when the task says an agent without a plan does so, §7.9.1), and reports the mean reward. The
-acting side will add QLAP policies through :func:`run_trials`.
+when the task says an agent without a plan does so, §7.9.1), and reports the mean reward. Any
+other policy (the agent in goal mode, ``qlap_runtime.agent_run.goal_policy``; a trained tile
+coder) runs through :func:`run_trials` on the same set-ups.
 """
 
 from __future__ import annotations
