@@ -165,7 +165,7 @@ def goal_index(agent: Agent, goal: Any) -> tuple[int, int]:
 
 
 def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
-                counts: dict[str, int] | None = None
+                counts: dict[str, int] | None = None, trace: list[dict[str, Any]] | None = None
                 ) -> Callable[[Any, Mapping[str, float], Any, np.random.Generator],
                               Mapping[str, float]]:
     """The agent as a policy for ``worlds.evaluate.run_trials`` (§7.2.1), learning off.
@@ -183,6 +183,9 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
 
     ``counts`` (if given) counts the policy's ``steps`` and those ``without_plan``: the agent
     had no plan for the goal and moved randomly (or held still) instead (§7.2.1).
+
+    ``trace`` (if given) gets one record per step (:func:`trace_record`): what the agent
+    was doing, for ``qlap eval --trace``.
     """
     if task_name not in world.tasks:
         raise ValueError(f"{world.name} has no task {task_name!r}; "
@@ -190,13 +193,14 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
     task = world.tasks[task_name]
     idle = "zero" if task.hold_motors_at_zero_without_plan else "babble"
     agent.learning = False
-    state: dict[str, Any] = {"t": agent.step_count, "goal": None}
+    state: dict[str, Any] = {"t": agent.step_count, "goal": None, "trial": -1}
 
     def qlap_policy(w: Any, obs: Mapping[str, float], goal: Any,
                     rng: np.random.Generator) -> Mapping[str, float]:
         if w.step_count == 0:                           # a new trial
             agent.new_episode()
             state["goal"] = None
+            state["trial"] += 1
         if pursue is not None:
             goal = pursue
         if goal != state["goal"]:
@@ -208,13 +212,39 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
         if counts is not None:
             counts["steps"] = counts.get("steps", 0) + 1
             counts["without_plan"] = counts.get("without_plan", 0) + (agent.mode == "idle")
+        if trace is not None:
+            trace.append(trace_record(agent, state["trial"], w.step_count, goal, motor))
         return motor
 
     return qlap_policy
 
 
+def trace_record(agent: Agent, trial: int, step: int, goal: Any,
+                 motor: Mapping[str, float]) -> dict[str, Any]:
+    """One step of an evaluation as ``qlap eval --trace`` writes it (docs/analysis.md): the
+    trial and its step, the goal, the agent's mode, its call list (top first), whether the
+    deepest plan waits with the motors held (:meth:`Agent.waiting`) and the motor command."""
+    return {"trial": trial, "step": step, "goal": f"{goal.variable}={goal.value}",
+            "mode": agent.mode, "calls": agent.call_list_labels(), "waiting": agent.waiting(),
+            "motor": {k: float(v) for k, v in motor.items()}}
+
+
+def write_trace(path: str | Path, records: list[dict[str, Any]],
+                rewards: list[float]) -> None:
+    """Write an evaluation's trace as JSON lines, atomically: the step records, then one
+    ``{"trial": i, "reward": r}`` line per trial."""
+    from .qlap.checkpoint import atomic_file
+
+    with atomic_file(Path(path)) as f:
+        for rec in records:
+            f.write(json.dumps(rec, ensure_ascii=False).encode() + b"\n")
+        for i, r in enumerate(rewards):
+            f.write(json.dumps({"trial": i, "reward": float(r)}).encode() + b"\n")
+
+
 def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, seed: int,
-             policy: str = "qlap", pursue: Any = None) -> dict[str, Any]:
+             policy: str = "qlap", pursue: Any = None,
+             trace: str | Path | None = None) -> dict[str, Any]:
     """The §7.2 protocol: ``trials`` trials of a task with the agent in goal mode.
 
     Learning is off during evaluation, so every trial uses the checkpoint's knowledge
@@ -223,11 +253,15 @@ def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, se
     ``worlds.base.Goal``, policy "qlap" only) the agent pursues that goal instead of the
     task's; the result names it as ``pursued`` ("T_L.dot=+"). ``steps_without_plan`` of
     ``policy_steps`` (policy "qlap"): the steps in which the agent had no plan for its goal.
+    With ``trace`` (policy "qlap" only) every step is written there (:func:`write_trace`) and
+    the result's ``waiting_steps`` counts the steps in which a plan waited (§5.3.1, Alg. 7).
     """
     from worlds.evaluate import run_random_trials, run_trials
 
     if pursue is not None and policy != "qlap":
         raise ValueError(f"a goal to pursue needs the qlap policy, not {policy!r}")
+    if trace is not None and policy != "qlap":
+        raise ValueError(f"a trace needs the qlap policy, not {policy!r}")
     if policy == "random":
         res = run_random_trials(world, task_name, trials, seed)
     elif policy == "qlap":
@@ -236,9 +270,13 @@ def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, se
             goal_index(agent, pursue)                   # an unknown goal: ValueError, now
             agent.clear_goal()
         counts: dict[str, int] = {}
+        records: list[dict[str, Any]] | None = [] if trace is not None else None
         res = run_trials(world, task_name, trials, seed,
-                         goal_policy(agent, world, task_name, pursue, counts))
+                         goal_policy(agent, world, task_name, pursue, counts, records))
         agent.end_trial()                               # the last trial's Sarsa, undone
+        if trace is not None and records is not None:
+            write_trace(trace, records, res["rewards"])
+            res["waiting_steps"] = sum(1 for rec in records if rec["waiting"])
         res["steps_without_plan"] = counts.get("without_plan", 0)
         res["policy_steps"] = counts.get("steps", 0)
         if pursue is not None:

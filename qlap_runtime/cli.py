@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any, NoReturn
@@ -172,6 +173,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the agent pursues this goal in every trial instead of the task's "
                          "(e.g. T_L.dot=+ in hit_floor: how often pushing the block left "
                          "knocks it off); the task still judges each trial")
+    ev.add_argument("--trace", type=path_arg, default=None, metavar="FILE.jsonl",
+                    help="write every step of the trials as JSON lines: the goal, the agent's "
+                         "mode and call list, whether a plan waits with the motors held, "
+                         "the motor command; then each trial's reward (docs/analysis.md)")
     ev.add_argument("--json", action="store_true", help="print the result as JSON")
 
     curve = sub.add_parser(
@@ -934,6 +939,26 @@ def _world_mismatch(checkpoint: Path, world: Any, spec: str) -> str | None:
                if missing else " (its variables differ)"))
 
 
+def _trace_problem(path: Path, policy: str) -> str | None:
+    """Why ``qlap eval --trace path`` cannot be written, before any trial runs; None if it can."""
+    if policy != "qlap":
+        return "a trace needs --policy qlap"
+    if path.is_dir():
+        return "is a directory"
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        return f"no directory {parent}"
+    import tempfile
+
+    try:                                # a probe, as the trace is written: a temp file there
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".tmp")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        return f"cannot write in {parent} ({exc.strerror or exc})"
+    return None
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from .agent_run import evaluate
     from .qlap.checkpoint import CheckpointError
@@ -941,6 +966,11 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     if args.policy == "qlap" and args.checkpoint is None:
         print("qlap eval: --checkpoint is required with --policy qlap", file=sys.stderr)
         return 2
+    if args.trace is not None:
+        problem = _trace_problem(args.trace, args.policy)
+        if problem is not None:
+            print(f"qlap eval: --trace {args.trace}: {problem}", file=sys.stderr)
+            return 2
     if args.world is None:            # the world the checkpoint was learned in
         from .analysis.runs import recorded_world
 
@@ -957,11 +987,15 @@ def _cmd_eval(args: argparse.Namespace) -> int:
             return 2
     try:
         res = evaluate(args.checkpoint, world, args.task, args.trials, args.seed, args.policy,
-                       pursue=args.goal)
+                       pursue=args.goal, trace=args.trace)
     except (CheckpointError, ValueError, KeyError) as exc:
         reason = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"qlap eval: {reason}", file=sys.stderr)
         return 2
+    except OSError as exc:                       # the trace could not be written
+        print(f"qlap eval: --trace {args.trace}: cannot write ({exc.strerror or exc})",
+              file=sys.stderr)
+        return 1
     finally:
         world.close()
     if args.json:
@@ -972,6 +1006,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
               f"{res['n_trials']} trial{'' if res['n_trials'] == 1 else 's'}): "
               f"mean reward {res['mean_reward']:.3f} ± {res['stderr_reward']:.3f} (s.e.), "
               f"success rate {res['success_rate']:.2f}")
+        if "waiting_steps" in res:
+            print(f"  a plan waited with the motors held in {res['waiting_steps']:,} of "
+                  f"{res['policy_steps']:,} steps; trace: {args.trace}")
         if res.get("policy_steps") and res["steps_without_plan"] == res["policy_steps"]:
             goal = res.get("pursued", "the task's goal")
             print(f"  note: the agent had no plan for {goal} in any step: it moved randomly "

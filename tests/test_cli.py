@@ -109,3 +109,40 @@ def test_a_closed_pipe_ends_the_command_quietly(monkeypatch, capsys):
     monkeypatch.setattr("sys.stdout", ClosedPipe())
     assert cli.main(["worlds"]) == 141
     assert capsys.readouterr().err == ""
+
+
+def test_eval_trace_records_every_step_and_changes_nothing(tmp_path):
+    """`qlap eval --trace`: one record per policy step, trials numbered from 0 with steps from
+    0, the waits counted as the result says, each trial's reward — and the same trials as
+    without a trace (tracing reads the agent, it does not steer it)."""
+    out, trace = tmp_path / "run", tmp_path / "trace.jsonl"
+    r = qlap("run", "--headless", "--placement", "sync", "--quiet", "--world", "pong",
+             "--steps", "40000", "--babble-steps", "10000", "--seed", "1", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    ck = str(out / "checkpoints" / "final")
+    plain = json.loads(qlap("eval", "--checkpoint", ck, "--task", "pong_volley", "--trials",
+                            "6", "--json").stdout)
+    r = qlap("eval", "--checkpoint", ck, "--task", "pong_volley", "--trials", "6",
+             "--trace", str(trace), "--json")
+    assert r.returncode == 0, r.stderr
+    traced = json.loads(r.stdout)
+    assert traced["rewards"] == plain["rewards"]
+    lines = [json.loads(ln) for ln in trace.read_text().splitlines()]
+    steps = [rec for rec in lines if "step" in rec]
+    ends = [rec for rec in lines if "reward" in rec]
+    assert len(steps) == traced["policy_steps"] == plain["policy_steps"]
+    assert [e["trial"] for e in ends] == list(range(6))
+    assert [e["reward"] for e in ends] == traced["rewards"]
+    for trial in range(6):
+        numbers = [rec["step"] for rec in steps if rec["trial"] == trial]
+        assert numbers == list(range(len(numbers))) and numbers
+    waits = [rec for rec in steps if rec["waiting"]]
+    assert len(waits) == traced["waiting_steps"] > 0       # pong's plans wait for the ball
+    assert all(rec["mode"] == "goal" and rec["calls"] for rec in waits)
+    assert all(rec["goal"] in ("b_x.dot=+", "b_x.dot=-") and set(rec["motor"]) == {"u"}
+               for rec in steps)
+    r = qlap("eval", "--checkpoint", ck, "--task", "pong_volley", "--trace", str(tmp_path))
+    assert r.returncode == 2 and f"--trace {tmp_path}: is a directory" in r.stderr
+    r = qlap("eval", "--world", "pong", "--policy", "random", "--task", "pong_volley",
+             "--trace", str(trace))
+    assert r.returncode == 2 and "a trace needs --policy qlap" in r.stderr

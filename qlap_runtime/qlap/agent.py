@@ -1268,6 +1268,19 @@ class Agent:
     def call_list_labels(self) -> list[str]:
         return [self.action_label(f.key) for f in self.call_list]
 
+    def waiting(self) -> bool:
+        """Whether the deepest running plan waits with the motors held: a magnitude plan's wait
+        action (§5.3.1, "maintaining its current motor value") or a change plan's k steps after
+        its antecedent (Alg. 7 lines 18–20)."""
+        if not self.call_list or self.call_list[-1].is_motor:
+            return False
+        f = self.call_list[-1]
+        if f.wait_until >= 0:
+            return True
+        plan = self.plans.get(f.plan_id)
+        return (plan is not None and 0 <= f.sub < len(plan.actions)
+                and plan.actions[f.sub].role is Role.WAIT)
+
     def knowledge(self) -> dict[str, Any]:
         """Landmarks, DBNs (with plan flags), actions with their plans (knowledge.json)."""
         k = self.learner.knowledge()
