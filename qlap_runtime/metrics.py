@@ -284,12 +284,14 @@ def follow_metrics(path: str | Path, on_line: LineFn, stop: threading.Event,
 
 
 def summary_of(agent: Agent, world: Any, seed: int, steps: int, wall: float,
-               rejected: list[str]) -> dict[str, Any]:
+               rejected: list[str], placement: str = "sync") -> dict[str, Any]:
     """summary.json's figures of a run (docs/outputs.md); the counts are those of the metrics
-    log (:func:`~qlap_runtime.metrics.knowledge_counts`), so the two agree."""
+    log (:func:`~qlap_runtime.metrics.knowledge_counts`), so the two agree. ``placement``:
+    ``sync`` (the synchronous loop) or ``local`` (the terminal UI's agent thread)."""
     n = knowledge_counts(agent)
     c = agent.counters
     return {
+        "placement": placement,
         "world": getattr(world, "name", type(world).__name__), "seed": seed, "steps": steps,
         "wall_time_s": round(wall, 3), "steps_per_s": round(steps / wall, 1) if wall else None,
         "k": n["k"], "dbns": n["dbns"], "change_dbns": n["change_dbns"],

@@ -1,3 +1,4 @@
+#!/usr/bin/env python3
 """Steps/s of the local driver with and without the UI attached (docs/tui.md).
 
     .venv/bin/python scripts/bench_tui.py [--steps 8000] [--world core2d]

@@ -133,6 +133,33 @@ def test_a_top_level_module_factory_is_a_world(capsys, tmp_path, monkeypatch):
     world.close()
 
 
+@pytest.mark.parametrize("source, problem", [
+    ("def make():\n    raise RuntimeError('boom in factory')\n",
+     "its factory 'make' raised RuntimeError: boom in factory"),
+    ("def make(:\n", "importing 'qlap_broken_world' failed: SyntaxError"),
+    ("raise ValueError('bad at import')\n",
+     "importing 'qlap_broken_world' failed: ValueError: bad at import"),
+])
+def test_a_plugin_world_that_fails_is_one_line(capsys, tmp_path, monkeypatch, source, problem):
+    (tmp_path / "qlap_broken_world.py").write_text(source)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "qlap_broken_world", raising=False)
+    for argv in (("eval", "--policy", "random", "--task", "x"),
+                 ("run", "--headless", "--placement", "sync", "--steps", "10",
+                  "--out", str(tmp_path / "out"))):
+        code, _, err = qlap(capsys, *argv, "--world", "qlap_broken_world:make")
+        assert_one_line(code, err, "qlap_broken_world:make", problem)
+        sys.modules.pop("qlap_broken_world", None)
+
+
+@pytest.mark.parametrize("spec, given", [("pong:x", "pong has no variants, got 'x'"),
+                                         ("core2d:x:y", "got 'x:y'")])
+def test_a_variant_of_a_world_without_variants(capsys, spec, given):
+    code, _, err = qlap(capsys, "eval", "--policy", "random", "--world", spec, "--task", "x")
+    line = assert_one_line(code, err, spec, given)
+    assert "None" not in line
+
+
 def test_negative_babble_steps(capsys, tmp_path):
     code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--placement", "sync",
                         "--steps", "10", "--babble-steps", "-3", "--out", str(tmp_path / "r"))

@@ -44,6 +44,10 @@ from qlap_runtime.runtime.background import CheckpointWriter
 from qlap_runtime.runtime.controls import RunControl
 from qlap_runtime.runtime.runner import Display, Runner
 
+PLACEMENT = "local"
+"""What the Runtime panel and summary.json call this runner: the synchronous agent (Algorithm
+2) stepping in a thread of the UI's process, not an actor placement."""
+
 log = logging.getLogger("qlap.tui.driver")
 
 
@@ -161,7 +165,7 @@ class LocalDriver:
     def start(self) -> LocalDriver:
         """Open the session if needed, subscribe to control and start the worker thread."""
         session = self.open()
-        self.display = Display(session, self.run_id, placement="embedded",
+        self.display = Display(session, self.run_id, placement=PLACEMENT,
                                world=str(getattr(self.world, "name", "")), seed=self.seed,
                                world_view=lambda: telemetry.world_msg(self.agent, self.world),
                                cadence=self.cadence)
@@ -353,7 +357,7 @@ class LocalDriver:
         atomic_write_json(self.out / "knowledge.json", agent.knowledge())
         atomic_write_json(self.out / "summary.json",
                           summary_of(agent, self.world, self.seed, self.steps_done, wall,
-                                     self._rejected))
+                                     self._rejected, placement=PLACEMENT))
         step, changes, path = self._last_saved
         same = path if (step, changes) == (agent.step_count, self.runner.agent_changes) \
             else None

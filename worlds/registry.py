@@ -92,8 +92,12 @@ def _load(target: str) -> Any:
         for part in attribute.split("."):
             obj = getattr(obj, part)
     except AttributeError:
-        raise ValueError(f"{module_name!r} has no attribute {attribute!r}") from None
+        raise _NoAttribute(f"{module_name!r} has no attribute {attribute!r}") from None
     return obj
+
+
+class _NoAttribute(ValueError):
+    """The module imported but has no such attribute."""
 
 
 def _unknown(spec: str, why: str) -> WorldSpecError:
@@ -116,8 +120,11 @@ def _make_plugin(spec: str, options: dict[str, Any]) -> World:
         raise WorldSpecError(f"world {spec!r}: importing {module_name!r} failed: {exc}") from exc
     except ImportError as exc:
         raise WorldSpecError(f"world {spec!r}: importing {module_name!r} failed: {exc}") from exc
-    except ValueError:
+    except _NoAttribute:
         raise _unknown(spec, f"module {module_name!r} has no factory {attribute!r}") from None
+    except Exception as exc:        # the module itself fails: a SyntaxError, its own raise
+        raise WorldSpecError(f"world {spec!r}: importing {module_name!r} failed: "
+                             f"{type(exc).__name__}: {exc}") from exc
     if not callable(factory):
         raise WorldSpecError(f"world {spec!r}: {attribute!r} is a {type(factory).__name__}, "
                              f"not a factory; {IMPORT_FORM}")
@@ -129,7 +136,11 @@ def _make_plugin(spec: str, options: dict[str, Any]) -> World:
                              f"{given}: {exc}); {IMPORT_FORM}") from None
     except ValueError:              # no signature (a builtin): let the call decide
         pass
-    world = factory(**options)
+    try:
+        world = factory(**options)
+    except Exception as exc:
+        raise WorldSpecError(f"world {spec!r}: its factory {attribute!r} raised "
+                             f"{type(exc).__name__}: {exc}") from exc
     if not isinstance(world, World):
         raise WorldSpecError(f"world {spec!r} made a {type(world).__name__}, not a worlds.World")
     return world

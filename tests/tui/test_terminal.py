@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import json
 import os
 import pty
 import re
@@ -176,5 +177,8 @@ def test_quitting_a_finished_run_says_nothing_about_stopping_it(tmp_path):
         text = term.text()
         assert code == 0, term.tail()
         assert "wrote " in text and "stopping the agent" not in text, term.tail()
+        # summary.json names the UI's runner (as its Runtime panel does), not an actor placement.
+        (summary,) = tmp_path.glob("runs/*/summary.json")
+        assert json.loads(summary.read_text())["placement"] == "local"
     finally:
         term.close()

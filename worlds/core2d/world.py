@@ -365,7 +365,7 @@ def make_core2d(
 ) -> Core2DWorld:
     """Registry factory for ``core2d`` (no variants)."""
     if variant or option or options:
-        raise ValueError(
-            f"core2d takes no variant or options, got {variant!r} {option!r} {options}"
-        )
+        given = [repr(":".join(x for x in (variant, option) if x))] if variant or option else []
+        given += [f"{k}={v!r}" for k, v in options.items()]
+        raise ValueError(f"core2d takes no variant or options, got {', '.join(given)}")
     return Core2DWorld()

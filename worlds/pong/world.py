@@ -222,5 +222,6 @@ class PongWorld(World):
 def make_pong(variant: str | None = None, option: str | None = None, **options: Any) -> PongWorld:
     """Registry factory for ``pong`` (option: ``random_paddles=True``)."""
     if variant or option:
-        raise ValueError(f"pong has no variants, got {variant!r} {option!r}")
+        given = ":".join(x for x in (variant, option) if x)
+        raise ValueError(f"pong has no variants, got {given!r}")
     return PongWorld(**options)
