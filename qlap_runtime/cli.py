@@ -81,9 +81,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "10,000 steps (OUT/checkpoints/), a metrics line every 1,000 steps "
                     "(OUT/metrics.jsonl) and, at the end, OUT/knowledge.json, OUT/summary.json "
                     "and OUT/checkpoints/final (docs/outputs.md), and prints what was learned.")
-    run.add_argument("--world", default="core",
+    run.add_argument("--world", default=None,
                      help="registered world spec (e.g. core, core:floating, core2d, pong, "
-                          "gym:Pendulum-v1) or package.module:Factory (default: core)")
+                          "gym:Pendulum-v1) or package.module:Factory (default: core; with "
+                          "--resume, the world the checkpoint records)")
     run.add_argument("--steps", type=positive_int, default=30_000,
                      help="agent steps to run (default: 30000)")
     run.add_argument("--seed", type=count, default=None,
@@ -553,6 +554,11 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
     from .qlap import Params
     from .qlap.checkpoint import CheckpointError, checkpoint_seed, load_agent
 
+    if args.world is None:            # a resumed agent goes on in the world it learned in
+        from .analysis.runs import recorded_world
+
+        recorded = recorded_world(args.resume) if args.resume is not None else None
+        args.world = recorded or "core"
     if args.resume is not None:
         seed = checkpoint_seed(args.resume)
         given = [flag for flag, value in (("--lag", args.lag),

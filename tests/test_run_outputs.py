@@ -356,6 +356,13 @@ def test_the_ui_path_writes_its_run_directory_and_c_saves_into_it(tmp_path):
     assert (run / "checkpoints" / "final" / "agent.json").is_file()
     assert (run / "summary.json").is_file() and (run / "knowledge.json").is_file()
     assert [line["step"] for line in metrics(run)][:2] == [1000, 2000]
+    # What `c` saved holds the world's state too, so the default placement resumes it exactly.
+    (saved_dir,) = [run / "checkpoints" / name for name in saved]
+    assert (saved_dir / "world.json").is_file()
+    r = qlap("run", "--headless", "--quiet", "--resume", str(saved_dir), "--steps", "2500",
+             "--out", str(tmp_path / "resumed"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "resumed" / "summary.json").read_text())["steps"] == 2500
 
 
 # --------------------------------------------------------------------------- qlap plot

@@ -106,7 +106,7 @@ class LocalDriver:
                              clock=RunControl(paused=paused, speed=max(0.0, float(speed))),
                              out=self.out, checkpoints=self.checkpoint_dir,
                              counter=self.counter, key=keys.key(self.run_id, "control"),
-                             run_id=self.run_id)
+                             run_id=self.run_id, world_state=self._world_state)
         """Applies the controls (the contract the executor actor shares)."""
         self.display: Display | None = None
         self._last_saved: tuple[int, int, Path | None] = (-1, -1, None)
@@ -321,6 +321,12 @@ class LocalDriver:
             self._metrics.close()
 
     # ----------------------------------------------------------------------------- outputs
+    def _world_state(self) -> Any:
+        """The world's state between two steps, as a periodic checkpoint saves it."""
+        from qlap_runtime.qlap.checkpoint import world_state_of
+
+        return world_state_of(self.world)
+
     def _record(self, t: int) -> None:
         """After agent step ``t``: the metrics line and the periodic checkpoint when due."""
         if self._metrics is not None:

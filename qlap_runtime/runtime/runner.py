@@ -31,7 +31,7 @@ import trio
 from .. import telemetry
 from ..bus.bridge import Publisher, RejectionCounter
 from ..bus.schema import Control
-from ..qlap.checkpoint import save_agent
+from ..qlap.checkpoint import save_agent, save_world_state
 from .controls import ControlError, RunControl
 
 log = logging.getLogger("qlap.runner")
@@ -54,8 +54,12 @@ class Runner:
                  clock: RunControl | None = None,
                  out: Path | None = None, checkpoints: Path | None = None,
                  counter: RejectionCounter | None = None, key: str = "control",
-                 run_id: str = "run") -> None:
+                 run_id: str = "run", world_state: Callable[[], Any] | None = None) -> None:
         self.agent = agent
+        self.world_state = world_state
+        """The world's state now (``World.get_state``), for ``save`` — a runner that steps the
+        world itself gives it, so that its saves resume exactly as the periodic checkpoints
+        do (``world.json``); None: a save holds the agent alone."""
         self.world_spec = world_spec
         self.clock = clock if clock is not None else RunControl()
         self.out = None if out is None else Path(out)
@@ -115,6 +119,8 @@ class Runner:
                 self.checkpoints / f"step-{max(self.agent.step_count + 1, 0):07d}"
             try:
                 save_agent(self.agent, target, self.world_spec)
+                if self.world_state is not None:
+                    save_world_state(target, self.world_state())
                 self.message = f"saved {target}"
             except Exception as e:                  # a bad path must not stop the run
                 log.warning("save to %s failed: %s", target, e)
