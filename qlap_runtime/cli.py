@@ -377,12 +377,29 @@ def _check_args(args: argparse.Namespace) -> None:
     attr, flag = outputs.get(args.command, (None, None))
     value = getattr(args, attr, None) if attr else None
     if value is not None:
-        path = Path(value)
-        if path.is_dir():
-            raise CliError(f"{flag} {value}: is a directory, not a file")
-        parent = path.parent
-        if not parent.is_dir():
-            raise CliError(f"{flag} {value}: directory {parent} does not exist")
+        problem = _file_problem(Path(value))
+        if problem is not None:
+            raise CliError(f"{flag} {value}: {problem}")
+
+
+def _file_problem(path: Path) -> str | None:
+    """Why an output file cannot be written at ``path``, found before any work starts (a
+    directory there, no parent directory, or a parent that refuses a probe file); None if it
+    can."""
+    import tempfile
+
+    if path.is_dir():
+        return "is a directory, not a file"
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        return f"directory {parent} does not exist"
+    try:                                # a probe, as the file is written: a temp file there
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".tmp")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        return f"cannot write in {parent} ({exc.strerror or exc})"
+    return None
 
 
 def _cmd_tui(args: argparse.Namespace) -> int:
@@ -949,20 +966,7 @@ def _trace_problem(path: Path, policy: str) -> str | None:
     """Why ``qlap eval --trace path`` cannot be written, before any trial runs; None if it can."""
     if policy != "qlap":
         return "a trace needs --policy qlap"
-    if path.is_dir():
-        return "is a directory"
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        return f"no directory {parent}"
-    import tempfile
-
-    try:                                # a probe, as the trace is written: a temp file there
-        fd, probe = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".tmp")
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        return f"cannot write in {parent} ({exc.strerror or exc})"
-    return None
+    return _file_problem(path)
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:

@@ -64,6 +64,15 @@ def test_run_record_into_a_missing_directory(capsys, tmp_path):
     assert not (tmp_path / "run").exists()          # refused before anything started
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs /proc")
+def test_run_record_into_a_directory_that_refuses_files(capsys, tmp_path):
+    """/proc exists but takes no new file: refused before the run starts, not after."""
+    code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--steps", "10",
+                        "--out", str(tmp_path / "run"), "--record", "/proc/x.mcap")
+    assert_one_line(code, err, "--record /proc/x.mcap", "cannot write in /proc")
+    assert not (tmp_path / "run").exists()
+
+
 def test_snapshot_out_into_a_missing_directory(capsys, tmp_path):
     target = tmp_path / "missing" / "scene.png"
     code, _, err = qlap(capsys, "snapshot", "--out", str(target))
@@ -355,3 +364,17 @@ def test_a_knowledge_file_of_the_wrong_shape_is_one_line(capsys, tmp_path, knowl
     code, _, err = qlap(capsys, command, str(tmp_path))
     assert code == 2
     assert_one_line(code, err, "knowledge.json: not a run's knowledge", problem)
+
+
+@pytest.mark.parametrize("argv, problem", [
+    (("show", "{missing}"), "{missing}: no such directory"),
+    (("report", "{missing}"), "{missing}: no such directory"),
+    (("eval", "--checkpoint", "{missing}", "--task", "move_block"),
+     "{missing}: no such checkpoint directory"),
+    (("run", "--headless", "--resume", "{missing}", "--steps", "10"),
+     "{missing}: no such checkpoint directory"),
+])
+def test_a_directory_that_does_not_exist_is_named_as_such(capsys, tmp_path, argv, problem):
+    missing = str(tmp_path / "not-there")
+    code, _, err = qlap(capsys, *(a.format(missing=missing) for a in argv))
+    assert_one_line(code, err, problem.format(missing=missing))

@@ -206,6 +206,8 @@ def load_knowledge(path: Path) -> dict[str, Any]:
         ckpts = find_checkpoints(path, path.name)
         target = ckpts[-1].path if ckpts else None
     if target is None:
+        if not path.exists():
+            raise AnalysisError(f"{path}: no such directory")
         raise AnalysisError(f"{path} holds neither knowledge.json nor an agent checkpoint")
     try:
         return load_agent(target).knowledge()

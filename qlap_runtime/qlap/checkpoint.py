@@ -244,6 +244,8 @@ def not_a_checkpoint(directory: Path) -> str | None:
     directory given for one of its checkpoints — or None."""
     if directory.is_file():
         return f"{directory}: a file, not a checkpoint directory"
+    if not directory.exists():
+        return f"{directory}: no such checkpoint directory"
     if (directory / "checkpoints").is_dir() and not (directory / "learner.json").exists():
         return (f"{directory} is a run directory, not a checkpoint: give "
                 f"{directory / 'checkpoints' / 'final'} (or one of its step-… directories)")
