@@ -378,3 +378,24 @@ def test_a_directory_that_does_not_exist_is_named_as_such(capsys, tmp_path, argv
     missing = str(tmp_path / "not-there")
     code, _, err = qlap(capsys, *(a.format(missing=missing) for a in argv))
     assert_one_line(code, err, problem.format(missing=missing))
+
+
+def test_echo_refuses_a_bad_key_and_a_zero_count_before_connecting(capsys, closed_port):
+    endpoint = f"tcp/127.0.0.1:{closed_port}"
+    code, _, err = qlap(capsys, "echo", "--connect", endpoint, "--count", "1", "bad key **//")
+    line = assert_one_line(code, err, "KEY 'bad key **//': not a key expression")
+    assert "cannot connect" not in line and "credentials" not in line
+    r = qlap_process("echo", "--connect", endpoint, "--count", "0", "qlap/**")
+    assert_one_line(r.returncode, r.stderr, "argument --count", "got 0")
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("{ bad json5", "line 1, column 1: expected array"),
+    ("{ listen: { endpoints: 5 } }", "line 1, column 24: invalid type: integer `5`"),
+])
+def test_a_bad_router_config_file_is_one_line_with_its_place(capsys, tmp_path, text, problem):
+    path = tmp_path / "router.json5"
+    path.write_text(text)
+    code, _, err = qlap(capsys, "router", "--config", str(path))
+    line = assert_one_line(code, err, str(path), problem)
+    assert ".rs:" not in line and "-->" not in line

@@ -25,7 +25,7 @@ from typing import Any
 import trio
 import zenoh
 
-from ..argtypes import non_negative_float, positive_float
+from ..argtypes import non_negative_float, positive_float, positive_int
 from ..errors import one_line
 from .auth import VIEWER
 from .config import BusConfigError, TlsFiles, client_config, config_from_file, router_config
@@ -82,7 +82,7 @@ def add_bus_commands(sub: Any) -> None:
                                    "(e.g. 'qlap/**' or 'qlap/RUN/sense').")
     connection_args(e)
     e.add_argument("key", metavar="KEY", help="key expression")
-    e.add_argument("--count", type=int, default=None, metavar="N",
+    e.add_argument("--count", type=positive_int, default=None, metavar="N",
                    help="stop after N messages (default: until Ctrl-C)")
     e.add_argument("--raw", action="store_true", help="print payloads without validating")
 
@@ -94,6 +94,11 @@ def run_bus_command(args: argparse.Namespace) -> int:
             cfg = (config_from_file(args.config) if args.config is not None
                    else router_config(args.listen or ["tcp/127.0.0.1:7447"]))
             return trio.run(_router, cfg)
+        if args.command == "echo":
+            key_problem = _key_problem(args.key)
+            if key_problem is not None:
+                print(f"qlap echo: KEY {args.key!r}: {key_problem}", file=sys.stderr)
+                return 2
         cfg = client_from_args(args)
         if args.command == "record":
             return trio.run(_record, cfg, args)
@@ -109,6 +114,17 @@ def run_bus_command(args: argparse.Namespace) -> int:
         print(f"qlap {args.command}: {_describe(leaf, args)}", file=sys.stderr)
         return 2 if isinstance(leaf, BusConfigError) else 1
     raise ValueError(f"not a bus command: {args.command!r}")
+
+
+def _key_problem(key: str) -> str | None:
+    """Why ``key`` is not a Zenoh key expression (checked before connecting), or None."""
+    try:
+        zenoh.KeyExpr(key)
+    except zenoh.ZError as exc:
+        reason = one_line(exc)
+        return "not a key expression" + (f" ({reason.split(': ', 1)[-1]})"
+                                         if ": " in reason else "")
+    return None
 
 
 def _expected(exc: BaseException) -> BaseException | None:

@@ -210,10 +210,28 @@ def config_from_file(path: Path | str) -> zenoh.Config:
     try:
         cfg = zenoh.Config.from_file(str(p))
     except zenoh.ZError as e:
-        raise BusConfigError(f"--config {str(p)!r}: {e}") from None
+        raise BusConfigError(f"--config {str(p)!r}: {_parse_reason(e)}") from None
     _set(cfg, "scouting/multicast/enabled", False)
     _set(cfg, "scouting/gossip/enabled", False)
     return cfg
+
+
+def _parse_reason(exc: BaseException) -> str:
+    """Zenoh's error for a config file as one line: a JSON5 syntax error's drawing ("--> 1:1",
+    the line, a caret, "= expected …") becomes "line 1, column 1: expected …"; the Rust
+    source location is dropped."""
+    from ..errors import one_line
+
+    text = str(exc)
+    where = re.search(r"-->\s*(\d+):(\d+)", text)
+    what = re.search(r"^\s*=\s*(.+?)(?:\s+at \S+\.rs:\d+\.?)?\s*$", text, re.M)
+    if where and what:
+        return f"line {where[1]}, column {where[2]}: {what[1]}"
+    msg = re.search(r'msg:\s*"((?:[^"\\]|\\.)*)"', text)
+    loc = re.search(r"line:\s*(\d+),\s*column:\s*(\d+)", text)
+    if msg and loc:                                 # a value of the wrong type
+        return f"line {loc[1]}, column {loc[2]}: {msg[1]}"
+    return one_line(exc)
 
 
 def acl_own_keys(puts: Mapping[str, Sequence[str]], *,
