@@ -283,3 +283,21 @@ def test_formatting_has_one_zero_and_fits_columns():
     cols = dict((c.key, w) for c, w in fit_columns(COLUMNS, 120, first=30, flex="hist",
                                                    flex_max=32))
     assert cols["action"] == 30 and cols["hist"] == 32
+
+
+def test_iac_rows_line_up_whether_or_not_the_label_has_a_combining_dot():
+    """pretty() writes ż as z + U+0307: one cell, two characters. Padding by characters put
+    such a row's columns one cell to the left of the others."""
+    from rich.cells import cell_len
+
+    dotted, plain = pretty("a(z_BT.dot, [+])"), pretty("a(T_L, [-5.954, -5.78911])")
+    assert len(dotted) == cell_len(dotted) + 1                 # the combining dot
+    panel = IACPanel()
+    panel.weights = {dotted: 0.021, plain: 0.030}
+    panel.recent.extend([IACChoice(101638, dotted, 0.01, 112, False, {}),
+                         IACChoice(101648, plain, 0.01, 113, False, {})])
+    rows = panel.render_text(64, 8).plain.splitlines()[1:3]
+    ends = [cell_len(row[:row.index(w) + len(w)]) for row, w in zip(rows, ("0.030", "0.021"),
+                                                                      strict=True)]
+    assert ends[0] == ends[1]
+    assert cell_len(rows[0]) == cell_len(rows[1])

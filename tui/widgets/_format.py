@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from rich.cells import cell_len, set_cell_size
+
 from qlap_runtime.telemetry import pretty
 
 BLOCKS = "▁▂▃▄▅▆▇█"
@@ -62,10 +64,21 @@ def label(text: str) -> str:
 
 
 def clip(text: str, width: int) -> str:
-    """``text`` in at most ``width`` cells, an ellipsis marking a cut."""
+    """``text`` in at most ``width`` cells, an ellipsis marking a cut. Cells, not characters:
+    a label's combining dot (``ż`` as z + U+0307) takes none."""
     if width <= 0:
         return ""
-    return text if len(text) <= width else text[: max(width - 1, 0)] + "…"
+    if cell_len(text) <= width:
+        return text
+    return set_cell_size(text, max(width - 1, 0)) + "…"
+
+
+def pad(text: str, width: int) -> str:
+    """``text`` clipped to ``width`` cells and padded with spaces to exactly ``width`` (an
+    f-string's ``:<width`` counts characters, so a label with a combining dot came out a
+    cell short and its row's columns shifted)."""
+    text = clip(text, width)
+    return text + " " * max(width - cell_len(text), 0)
 
 
 def steps_done(step: int) -> int:
@@ -90,7 +103,7 @@ class Col:
 
     def title(self, width: int) -> str:
         """The header that fits in ``width`` cells."""
-        return self.header if len(self.header) <= width else clip(self.short or self.header,
+        return self.header if cell_len(self.header) <= width else clip(self.short or self.header,
                                                                    width)
 
 

@@ -11,7 +11,7 @@ from textual.widgets import Static
 
 from qlap_runtime.bus.schema import ActionInfo, IACChoice, Knowledge
 
-from ._format import clip, sparkline
+from ._format import clip, pad, sparkline
 
 THETA = 25
 """θ of eq. 6.1 (``Params.iac_window``; the snapshot does not carry it): an action's w_a is its
@@ -113,7 +113,7 @@ class IACPanel(Static):
             w = self.weights.get(c.action)
             w_s = "—" if w is None or w < 0 else f"{w:.3f}"
             out.append(f"{c.step:>7} ")
-            out.append(f"{clip(c.action, lw):<{lw}}", style="bold")
+            out.append(pad(c.action, lw), style="bold")
             out.append(f" {w_s:>5} {c.weight:>4.2f} {c.n_applicable:>3}\n")
         if not recent:
             out.append("(no choice yet: the agent babbles first)\n", style="dim")
@@ -128,7 +128,7 @@ class IACPanel(Static):
             aw = width - 8 - sw - (1 if sw else 0)
             for a, p in lp_all[:n_top]:
                 style = "bold green" if p > 0 else "dim"
-                out.append(f"{clip(a.label, aw):<{aw}}", style=style)
+                out.append(pad(a.label, aw), style=style)
                 out.append(f" {p:>+6.3f}", style=style)
                 if sw:
                     out.append(" " + sparkline(a.history, sw), style="cyan")
