@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Lockstep steps per second of each placement, all learning on (issue 5's "Fast").
+"""Lockstep steps per second of each placement beside the synchronous loop, all learning on.
 
 Runs the same world, seed and parameters with the synchronous loop, the embedded actors, the
 processes placement in each layout of ``--groups`` (``processes``: the default groups, the step
@@ -31,12 +31,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--world", default="core")
-    ap.add_argument("--steps", type=int, default=6000)
-    ap.add_argument("--lag", type=int, default=500)
-    ap.add_argument("--babble", type=int, default=3000)
-    ap.add_argument("--seed", type=int, default=0)
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] + " " + " ".join(
+        __doc__.split("\n\n")[1].split()),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--world", default="core", help="world spec of every run")
+    ap.add_argument("--steps", type=int, default=6000,
+                    help="agent steps of each run (docs/runtime.md's figures: 30000)")
+    ap.add_argument("--lag", type=int, default=500,
+                    help="batch lag L of the actor placements and the sync loop alike")
+    ap.add_argument("--babble", type=int, default=3000,
+                    help="motor-babbling steps before IAC practice (§6.1)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of every run")
     ap.add_argument("--groups", default="two,each",
                     help="the processes placement's layouts to run, comma-separated (two: "
                          "the default groups; each: one process per actor; none: skip)")
