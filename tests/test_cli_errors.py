@@ -142,7 +142,7 @@ def test_a_top_level_module_factory_is_a_world(capsys, tmp_path, monkeypatch):
     world.close()
 
 
-@pytest.mark.parametrize("source, problem", [
+@pytest.mark.parametrize(("source", "problem"), [
     ("def make():\n    raise RuntimeError('boom in factory')\n",
      "its factory 'make' raised RuntimeError: boom in factory"),
     ("def make(:\n", "importing 'qlap_broken_world' failed: SyntaxError"),
@@ -161,7 +161,7 @@ def test_a_plugin_world_that_fails_is_one_line(capsys, tmp_path, monkeypatch, so
         sys.modules.pop("qlap_broken_world", None)
 
 
-@pytest.mark.parametrize("spec, given", [("pong:x", "pong has no variants, got 'x'"),
+@pytest.mark.parametrize(("spec", "given"), [("pong:x", "pong has no variants, got 'x'"),
                                          ("core2d:x:y", "got 'x:y'")])
 def test_a_variant_of_a_world_without_variants(capsys, spec, given):
     code, _, err = qlap(capsys, "eval", "--policy", "random", "--world", spec, "--task", "x")
@@ -366,7 +366,7 @@ def test_a_knowledge_file_of_the_wrong_shape_is_one_line(capsys, tmp_path, knowl
     assert_one_line(code, err, "knowledge.json: not a run's knowledge", problem)
 
 
-@pytest.mark.parametrize("argv, problem", [
+@pytest.mark.parametrize(("argv", "problem"), [
     (("show", "{missing}"), "{missing}: no such directory"),
     (("report", "{missing}"), "{missing}: no such directory"),
     (("eval", "--checkpoint", "{missing}", "--task", "move_block"),
@@ -389,7 +389,7 @@ def test_echo_refuses_a_bad_key_and_a_zero_count_before_connecting(capsys, close
     assert_one_line(r.returncode, r.stderr, "argument --count", "got 0")
 
 
-@pytest.mark.parametrize("text, problem", [
+@pytest.mark.parametrize(("text", "problem"), [
     ("{ bad json5", "line 1, column 1: expected array"),
     ("{ listen: { endpoints: 5 } }", "line 1, column 24: invalid type: integer `5`"),
 ])
