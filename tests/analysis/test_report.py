@@ -98,14 +98,19 @@ def test_report_of_runs_as_json(runs, tmp_path):
     assert len(ck["dbns"]) == len(real["dbns"]) and ck["k"] == real["k"]
 
 
-def test_cli_hook(runs):
+def test_cli_hook(runs, tmp_path):
     r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "report", str(runs[0])],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "window k (App. C)" in r.stdout and "Table 8.1" in r.stdout
     r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "report", "/nonexistent"],
                        capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2 and "neither knowledge.json" in r.stderr
+    assert r.returncode == 2 and "/nonexistent: no such directory" in r.stderr
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "report", str(empty)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "neither knowledge.json" in r.stderr, r.stderr
 
 
 def test_resolutions_come_from_the_learner(runs, monkeypatch):
