@@ -34,6 +34,7 @@ from .timeline import (
     knowledge_timeline,
     mean_series,
     run_speed,
+    speed_problem,
 )
 
 __all__ = [
@@ -340,7 +341,7 @@ def format_timeline(timelines: Mapping[str, Sequence[KnowledgePoint]],
     for label in labels:
         sp = speeds.get(label)
         lines.append(f"  {label:<{width}}  " + (
-            "no summary.json" if sp is None or sp["steps_per_s"] is None else
+            speed_problem(sp) if sp is None or sp["steps_per_s"] is None else
             f"{sp['steps_per_s']:,.1f} steps/s ({sp['placement']})"))
     values = [sp["steps_per_s"] for sp in speeds.values() if sp and sp["steps_per_s"]]
     if many and values:

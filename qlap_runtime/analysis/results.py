@@ -41,7 +41,13 @@ from .curve import (
 )
 from .report import report_data
 from .runs import AnalysisError, find_checkpoints, read_summary, run_labels, run_world
-from .timeline import KnowledgePoint, describe_verdict, mean_series, plot_dbn_counts
+from .timeline import (
+    KnowledgePoint,
+    describe_verdict,
+    mean_series,
+    plot_dbn_counts,
+    speed_problem,
+)
 
 __all__ = [
     "ResultsConfig",
@@ -458,7 +464,7 @@ def _speed_rows(data: Mapping[str, Any]) -> tuple[list[list[str]], float | None]
     values = []
     for label, sp in data["speed"].items():
         if sp is None or sp.get("steps_per_s") is None:
-            rows.append([label, "—", "—", "no summary.json"])
+            rows.append([label, "—", "—", speed_problem(sp)])
             continue
         values.append(float(sp["steps_per_s"]))
         rows.append([label, f"{sp['steps_per_s']:,.1f}",

@@ -34,6 +34,7 @@ __all__ = [
     "mean_series",
     "plot_dbn_counts",
     "run_speed",
+    "speed_problem",
 ]
 
 _LANDMARK_KINDS = ("motor", "magnitude")
@@ -193,17 +194,34 @@ def describe_verdict(v: Mapping[str, Any]) -> str:
 
 def run_speed(run_dir: Path) -> dict[str, Any] | None:
     """``steps_per_s`` and ``placement`` of a run's summary.json (None without one). The
-    synchronous loop's summary names no placement."""
+    synchronous loop's summary names no placement. A summary.json that cannot be read gives
+    ``steps_per_s`` None and a ``problem`` naming why (a truncated file is not a missing one)."""
+    path = Path(run_dir) / "summary.json"
+    if not path.exists():
+        return None
     try:
-        data = orjson.loads((Path(run_dir) / "summary.json").read_bytes())
-    except (OSError, orjson.JSONDecodeError):
-        return None
+        data = orjson.loads(path.read_bytes())
+    except (OSError, orjson.JSONDecodeError) as exc:
+        return _unreadable(f"summary.json unreadable: {exc}")
     if not isinstance(data, dict):
-        return None
+        return _unreadable("summary.json is not a JSON object")
     sps = data.get("steps_per_s")
     return {"steps_per_s": None if sps is None else float(sps),
             "placement": data.get("placement", "sync"), "steps": data.get("steps"),
             "wall_time_s": data.get("wall_time_s")}
+
+
+def _unreadable(problem: str) -> dict[str, Any]:
+    return {"steps_per_s": None, "placement": None, "steps": None, "wall_time_s": None,
+            "problem": problem}
+
+
+def speed_problem(sp: Mapping[str, Any] | None) -> str:
+    """Why a run has no speed to show: no summary.json, an unreadable one, or no
+    ``steps_per_s`` in it."""
+    if sp is None:
+        return "no summary.json"
+    return str(sp.get("problem") or "no steps_per_s in summary.json")
 
 
 def plot_dbn_counts(timelines: Mapping[str, Sequence[KnowledgePoint]], path: Path,

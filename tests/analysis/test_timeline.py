@@ -19,6 +19,7 @@ from qlap_runtime.analysis.timeline import (
     knowledge_timeline,
     mean_series,
     run_speed,
+    speed_problem,
 )
 
 
@@ -154,3 +155,17 @@ def test_cli_report_json_has_the_timeline(runs):
     assert [q["step"] for q in out["timeline"]["s2"]] == [1000, 2000, 3000]
     assert out["speed"]["s2"]["steps_per_s"] > 0
     assert out["reference"]["growth"]["limit"] == 600
+
+
+def test_a_truncated_summary_is_named_not_called_missing(tmp_path):
+    run = tmp_path / "r"
+    run.mkdir()
+    assert run_speed(run) is None and speed_problem(None) == "no summary.json"
+    (run / "summary.json").write_text('{"steps_per_s": 2146.0, "plac')     # cut mid-write
+    sp = run_speed(run)
+    assert sp["steps_per_s"] is None
+    assert speed_problem(sp).startswith("summary.json unreadable: ")
+    (run / "summary.json").write_text("[1, 2]")
+    assert speed_problem(run_speed(run)) == "summary.json is not a JSON object"
+    (run / "summary.json").write_text('{"steps": 10}')
+    assert speed_problem(run_speed(run)) == "no steps_per_s in summary.json"
