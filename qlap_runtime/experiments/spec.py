@@ -13,6 +13,7 @@ measured ones. :func:`configure` applies the command line (``--agents``, ``--ste
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import types
 import typing
 from collections.abc import Iterable, Mapping
@@ -329,8 +330,13 @@ def parse_set(text: str) -> tuple[str, Any]:
     types_ = _field_types()
     if name == "ablations":
         raise ExperimentError("--set ablations=…: use --ablation NAME for the switches of §7.11")
+    if name in ABLATIONS:
+        raise ExperimentError(f"--set {name}: a switch of §7.11, not a Params field; use "
+                              f"--ablation {name}")
     if name not in types_:
-        raise ExperimentError(f"--set {name}: unknown Params field (see "
+        close = difflib.get_close_matches(name, list(types_), n=1)
+        hint = f"did you mean {close[0]}? " if close else ""
+        raise ExperimentError(f"--set {name}: unknown Params field ({hint}see "
                               "qlap_runtime/qlap/params.py)")
     return name, _convert(name, value.strip(), types_[name])
 

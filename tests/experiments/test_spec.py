@@ -79,7 +79,11 @@ def test_set_is_typed_by_the_params_field():
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (["core-tasks", "--set", "nope=1"], "--set nope: unknown Params field"),
+    (["core-tasks", "--set", "nope=1"], "--set nope: unknown Params field (see "),
+    (["core-tasks", "--set", "theta_rs=0.7"],
+     "--set theta_rs: unknown Params field (did you mean theta_sr? see"),
+    (["core-tasks", "--set", "no_iac=1"], "--set no_iac: a switch of §7.11, not a Params "
+     "field; use --ablation no_iac"),
     (["core-tasks", "--set", "theta_sr"], "expected name=value"),
     (["core-tasks", "--set", "theta_sr=high"], "--set theta_sr=high: expected float"),
     (["core-tasks", "--set", "babble_steps=2.5"], "expected int"),
