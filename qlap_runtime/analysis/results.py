@@ -693,7 +693,7 @@ def other_pages(out: Path, targets: ref.WorldTargets) -> list[tuple[str, str]]:
     (``--out docs/pong`` beside ``--out docs``). Other worlds' pages link none."""
     if targets is not ref.CORE_TARGETS:
         return []
-    return [(f"the same page for {t.world} ({t.seeds} seeds × {t.steps:,} steps)",
+    return [(f"the same page for {t.world} ({t.steps:,}-step runs, at least {t.seeds} seeds)",
              f"{t.world}/results.md")
             for t in ref.WORLD_TARGETS.values()
             if t is not ref.CORE_TARGETS and (Path(out) / t.world / "results.md").is_file()]

@@ -74,12 +74,13 @@ def test_core_links_the_pong_page_and_nothing_else_changes(tmp_path, monkeypatch
     (out / "pong").mkdir(parents=True)
     (out / "pong" / "results.md").write_text("# Learning results: pong\n")
     links = other_pages(out, ref.CORE_TARGETS)
-    assert links == [("the same page for pong (5 seeds × 100,000 steps)", "pong/results.md")]
+    assert links == [("the same page for pong (100,000-step runs, at least 5 seeds)",
+                      "pong/results.md")]
     assert other_pages(out, ref.PONG_TARGETS) == []
     cfg, tasks, data = core_inputs(tmp_path)
     page = render(cfg, tasks, data, monkeypatch, see_also=links).splitlines()
     golden = CORE_PAGE.read_text().splitlines()
-    line = ("- See also: the same page for pong (5 seeds × 100,000 steps), "
+    line = ("- See also: the same page for pong (100,000-step runs, at least 5 seeds), "
             "[pong/results.md](pong/results.md).")
     at = page.index(line)
     assert page[:at] + page[at + 1:] == golden and page[at - 1].startswith("- World `core`")
