@@ -6,6 +6,7 @@ applies what is adopted.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -250,6 +251,41 @@ def candidate_range(cut: Cut, vmin: float, vmax: float, bin_size: float,
         if cut.lb - vmin <= bin_size:
             return vmin, cut.lb
     return cut.lb, cut.ub
+
+
+@dataclass(frozen=True)
+class DBNLandmark:
+    """A landmark Algorithm 4 found for one DBN: its best by weighted gain G*·Pr(v = q)."""
+
+    wgain: float
+    dbn_id: int
+    var: int
+    q: int
+    """The open interval of ``var`` it splits (an index into the quantity space)."""
+    lb: float
+    ub: float
+
+
+def select_dbn_landmarks(found: Sequence[DBNLandmark], resolution: Callable[[int], float],
+                         improved_by: Callable[[DBNLandmark, DBNLandmark], bool] | None
+                         ) -> list[DBNLandmark]:
+    """The landmarks one execution of Algorithm 4 adds, in order (App. D.2): the DBNs' best
+    landmarks by weighted gain (ties: the lower DBN id), one per DBN (``found`` holds one
+    each, item 2) and per (v, q) (item 3), none closer than the variable's resolution to one
+    adopted before it (docs/decisions.md 35), and — item 1 — none for a DBN that a landmark
+    adopted before it already improves (``improved_by(candidate, adopted)``; None skips it)."""
+    adopted: list[DBNLandmark] = []
+    used: set[tuple[int, int]] = set()
+    for c in sorted(found, key=lambda f: (-f.wgain, f.dbn_id)):
+        res = resolution(c.var)
+        if (c.var, c.q) in used or any(a.var == c.var and max(a.lb - c.ub, c.lb - a.ub) < res
+                                       for a in adopted):
+            continue
+        if improved_by is not None and any(improved_by(c, a) for a in adopted):
+            continue
+        used.add((c.var, c.q))
+        adopted.append(c)
+    return adopted
 
 
 def is_candidate(gain: float, prob_interval: float, theta_ig: float) -> bool:

@@ -31,11 +31,13 @@ from .delta import (
     delta_version,
 )
 from .landmarks import (
+    DBNLandmark,
     EventBinner,
     best_cut,
     candidate_range,
     cut_gain_bounds_many,
     is_candidate,
+    select_dbn_landmarks,
 )
 from .params import Params
 from .perception import EventIndex, Percept, Perception
@@ -665,7 +667,8 @@ class ModelLearner:
 
     def _learn_dbn_landmarks(self, step: int) -> None:
         p = self.params
-        found: list[tuple[float, int, int, int, tuple]] = []   # wgain, dbn, var, q, proposal
+        found: list[DBNLandmark] = []
+        props: dict[int, tuple[tuple, ModelStats, np.ndarray]] = {}   # dbn id: proposal, r, X
         real_vars = self.table.of_kind(Kind.MOTOR, Kind.MAGNITUDE)
         cols = np.array([v.index for v in real_vars], dtype=np.int64)
         spaces = self.perception.spaces
@@ -758,15 +761,27 @@ class ModelLearner:
                 if prop is not None:
                     best = (wgain, dbn_id, var, q, prop)
             if best is not None:
-                found.append(best)
-        # D.2: one landmark per DBN (best weighted gain) and per (v, q).
-        found.sort(key=lambda f: (-f[0], f[1]))
-        used: set[tuple[int, int]] = set()
-        for _, dbn_id, var, q, (lb, ub, ante, ctx) in found:
-            if (var, q) in used or self._fit_resolution(var, lb, ub) != (lb, ub):
-                continue                        # D.2 item 3; or too close to one just added
-            used.add((var, q))
-            self._do(AddLandmark(var, lb, ub, "dbn", step, dbn_id, ante, ctx))
+                assert r is not None
+                wgain, _, var, q, prop = best
+                found.append(DBNLandmark(wgain, dbn_id, var, q, prop[0], prop[1]))
+                props[dbn_id] = (prop, r, X)
+        # D.2 items 1–3, decided on the quantity spaces before this execution; then applied.
+        motors = {v.index for v in self.table.of_kind(Kind.MOTOR)}
+
+        def improved_by(c: DBNLandmark, a: DBNLandmark) -> bool:
+            """Does the landmark adopted for another DBN already improve c's DBN
+            (isModelImprovement(r, r′) in any of §4.4.1's three ways; a motor only as the
+            antecedent, D.1)?"""
+            dbn = self.dbns[c.dbn_id]
+            if (a.var in motors) != (a.var == dbn.antecedent.var):
+                return False
+            _, r, X = props[c.dbn_id]
+            return self._landmark_proposal(dbn, r, a.var, a.lb, a.ub, X) is not None
+
+        for c in select_dbn_landmarks(found, self.perception.resolution,
+                                      improved_by if p.landmark_once else None):
+            (lb, ub, ante, ctx), _, _ = props[c.dbn_id]
+            self._do(AddLandmark(c.var, lb, ub, "dbn", step, c.dbn_id, ante, ctx))
 
     def _fit_resolution(self, var: int, lb: float, ub: float) -> tuple[float, float] | None:
         """A candidate landmark at the variable's resolution (docs/decisions.md): widened about

@@ -100,6 +100,10 @@ class Params:
     """If set, k is fixed (a world option, e.g. pong's k = 6, §7.10.1) instead of learned."""
     max_context_vars: int = 2
     """At most this many context variables per DBN (§4.2.1 footnote 1)."""
+    landmark_once: bool = True
+    """App. D.2 item 1: in one execution of Algorithm 4 a DBN already improved upon by another
+    new landmark (one adopted for a DBN of higher weighted gain) gets none of its own
+    (docs/decisions.md 113); False: every DBN may add its best."""
     stored_activations: int = 200
     """Activations kept per DBN for context and landmark learning (§4.4.1)."""
     dbn_max_age: int = 100_000

@@ -5,10 +5,12 @@ import pytest
 
 from qlap_runtime.qlap.landmarks import (
     Cut,
+    DBNLandmark,
     EventBinner,
     best_cut,
     candidate_range,
     is_candidate,
+    select_dbn_landmarks,
 )
 
 
@@ -220,3 +222,26 @@ def test_cut_gain_bounds_many_by_hand():
     assert b1.shape == (1, 3, 1) and len(l1) == 0
     assert b1[0, 0, 0] == 1.0 and b1[0, 1, 0] == -np.inf and b1[0, 2, 0] == -np.inf
     assert (b2 == -np.inf).all()
+
+
+def test_one_execution_of_algorithm_4_adopts_by_weighted_gain_under_items_1_to_3():
+    """App. D.2, by hand. Variables 0 and 1 with resolution 0.1. DBN 7's landmark on variable
+    0 has the highest weighted gain and goes first. DBN 3's (same v and q) is item 3's second;
+    DBN 5's lies 0.05 from DBN 7's, closer than the resolution; DBN 9's, on variable 1, is
+    adopted unless DBN 7's landmark already improves DBN 9 (item 1); DBN 2 ties DBN 4 on
+    weighted gain and goes first by its lower id."""
+    a = DBNLandmark(0.40, 7, 0, 1, 2.00, 2.10)
+    same_vq = DBNLandmark(0.35, 3, 0, 1, 3.00, 3.10)
+    too_close = DBNLandmark(0.30, 5, 0, 3, 2.15, 2.25)
+    other_var = DBNLandmark(0.25, 9, 1, 1, 0.50, 0.60)
+    tie_late = DBNLandmark(0.20, 4, 1, 3, 5.00, 5.10)
+    tie_early = DBNLandmark(0.20, 2, 1, 5, 8.00, 8.10)
+    found = [tie_late, other_var, too_close, same_vq, a, tie_early]
+    res = {0: 0.1, 1: 0.1}.__getitem__
+    assert select_dbn_landmarks(found, res, None) == [a, other_var, tie_early, tie_late]
+    improves = {(9, 7)}                      # (candidate's DBN, adopted landmark's DBN)
+    got = select_dbn_landmarks(found, res, lambda c, ad: (c.dbn_id, ad.dbn_id) in improves)
+    assert got == [a, tie_early, tie_late]
+    # 0.1 apart exactly is not closer than the resolution
+    edge = DBNLandmark(0.30, 5, 0, 3, 2.20, 2.30)
+    assert select_dbn_landmarks([a, edge], res, None) == [a, edge]
