@@ -559,9 +559,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return _cmd_run_inner(args)
     except OSError as exc:               # e.g. the disk filled up during the run
         where = getattr(args, "run_dir", None)
-        print(f"qlap run: {exc}" + (f" (run directory {where})" if where else ""),
-              file=sys.stderr)
+        print(f"qlap run: {exc}" + (f" (run directory {where})" if where else "")
+              + _kept_checkpoint(where), file=sys.stderr)
         return 1
+
+
+def _kept_checkpoint(run_dir: Path | None) -> str:
+    """What a failed run keeps: its newest complete periodic checkpoint (one with agent.json;
+    checkpoints are written whole or not at all) and how to go on from it, or ""."""
+    if run_dir is None:
+        return ""
+    from .qlap.checkpoint import AGENT_FILE
+
+    done = sorted(d for d in (Path(run_dir) / "checkpoints").glob("step-*")
+                  if (d / AGENT_FILE).is_file())
+    if not done:
+        return "; no checkpoint was kept"
+    return f"; kept: {done[-1]} (go on from it: qlap run --resume {done[-1]} --out NEW_DIR)"
 
 
 def _cmd_run_inner(args: argparse.Namespace) -> int:

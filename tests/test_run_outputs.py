@@ -133,6 +133,46 @@ def test_a_checkpoint_that_cannot_be_written_stops_the_run_with_its_error(tmp_pa
     assert not (tmp_path / "run" / "knowledge.json").exists()
 
 
+def test_a_checkpoint_directory_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """write_checkpoint_dir: a failed write leaves neither the checkpoint nor its temporary
+    sibling; a write into a directory that already holds another actor's part keeps the part
+    and moves agent.json in last."""
+    from qlap_runtime.qlap.checkpoint import write_checkpoint_dir
+
+    target = tmp_path / "checkpoints" / "step-0002000"
+
+    def half_then_full(d: Path) -> None:
+        (d / "learner.json").write_text("{}")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError, match="No space left"):
+        write_checkpoint_dir(target, half_then_full)
+    assert list((tmp_path / "checkpoints").iterdir()) == []
+
+    target.mkdir()
+    (target / "world.json").write_text('{"part": "world"}')
+    order: list[str] = []
+
+    def whole(d: Path) -> None:
+        for name in ("learner.json", "agent.json", "agent.npz"):
+            (d / name).write_text(name)
+
+    real_replace = os.replace
+
+    def watch(src, dst):
+        order.append(Path(dst).name)
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", watch)
+    write_checkpoint_dir(target, whole)
+    monkeypatch.undo()
+    assert order == ["agent.npz", "learner.json", "agent.json"]
+    assert sorted(p.name for p in target.iterdir()) == ["agent.json", "agent.npz",
+                                                        "learner.json", "world.json"]
+    assert (target / "world.json").read_text() == '{"part": "world"}'
+    assert list((tmp_path / "checkpoints").iterdir()) == [target]
+
+
 def test_final_is_a_directory_when_it_differs_and_a_marker_where_links_fail(tmp_path,
                                                                             monkeypatch):
     from qlap_runtime.analysis.runs import find_checkpoints, load_knowledge

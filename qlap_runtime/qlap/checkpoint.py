@@ -60,6 +60,8 @@ links cannot be made): ``qlap-checkpoint-link step-0250000``."""
 
 WORLD_FILE = "world.json"
 """The world's state in a checkpoint (``World.get_state``), for an exact ``--resume``."""
+AGENT_FILE = "agent.json"
+"""The file that makes a directory an agent checkpoint; written last."""
 STATS_PART = "stats"
 """``stats.json``/``stats.npz``: the pair and window statistics of DBN search (§4.1,
 Appendix C), written beside an actor placement's checkpoint by the contingency actor: the
@@ -601,7 +603,7 @@ def save_agent(agent: Any, directory: str | Path, world: str | None = None,
     _write_npz(directory / "agent.npz", arrays if fast else
                _group(_pack_rows(arrays, [k for k in arrays if k.endswith(".call_x")]),
                       "plan"), fast)
-    _write_compact_json(directory / "agent.json", meta)
+    _write_compact_json(directory / AGENT_FILE, meta)
     return directory
 
 
@@ -793,10 +795,43 @@ def save_step_checkpoint(agent: Any, checkpoints: str | Path, step: int,
     none). Returns its path (None with ``keep == 0``)."""
     if keep == 0:
         return None
-    path = save_agent(agent, Path(checkpoints) / step_name(step), world)
-    save_world_state(path, world_state)
+
+    def write(d: Path) -> None:
+        save_agent(agent, d, world)
+        save_world_state(d, world_state)
+
+    path = write_checkpoint_dir(Path(checkpoints) / step_name(step), write)
     prune_checkpoints(checkpoints, keep)
     return path
+
+
+def write_checkpoint_dir(target: str | Path, write: Callable[[Path], None]) -> Path:
+    """A checkpoint directory written whole or not at all: ``write`` fills a hidden sibling
+    (``.NAME.PID.tmp``), which is then renamed to ``target``. Where ``target`` already exists
+    (the actor placements' world and statistics parts are written into it first; a second
+    save at one step) the files move in one by one, ``agent.json`` — what makes a directory a
+    checkpoint — last. If ``write`` fails (a full disk), the sibling is removed and the error
+    raised: no half-written checkpoint is left under a checkpoint's name."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.parent / f".{target.name}.{os.getpid()}.tmp"
+    _remove(tmp)
+    try:
+        tmp.mkdir()
+        write(tmp)
+        if target.is_symlink() or target.is_file():
+            target.unlink()
+        if not target.is_dir():
+            os.replace(tmp, target)
+            return target
+        names = sorted(p.name for p in tmp.iterdir())
+        for name in sorted(names, key=lambda n: n == AGENT_FILE):
+            os.replace(tmp / name, target / name)
+        tmp.rmdir()
+    except BaseException:
+        _remove(tmp)
+        raise
+    return target
 
 
 def _remove(path: Path) -> None:

@@ -31,7 +31,7 @@ import trio
 from .. import telemetry
 from ..bus.bridge import Publisher, RejectionCounter
 from ..bus.schema import Control
-from ..qlap.checkpoint import save_agent, save_world_state
+from ..qlap.checkpoint import save_agent, save_world_state, write_checkpoint_dir
 from .controls import ControlError, RunControl
 
 log = logging.getLogger("qlap.runner")
@@ -118,9 +118,13 @@ class Runner:
             target = self._confined(path) if path else \
                 self.checkpoints / f"step-{max(self.agent.step_count + 1, 0):07d}"
             try:
-                save_agent(self.agent, target, self.world_spec)
-                if self.world_state is not None:
-                    save_world_state(target, self.world_state())
+                state = self.world_state() if self.world_state is not None else None
+
+                def write(d: Path) -> None:
+                    save_agent(self.agent, d, self.world_spec)
+                    save_world_state(d, state)
+
+                write_checkpoint_dir(target, write)
                 self.message = f"saved {target}"
             except Exception as e:                  # a bad path must not stop the run
                 log.warning("save to %s failed: %s", target, e)
