@@ -349,7 +349,11 @@ def main(argv: list[str] | None = None) -> int:
         leaf = expected_error(exc)
         if leaf is None:
             raise
-        print(f"qlap {args.command}: {one_line(leaf)}", file=sys.stderr)
+        line = f"qlap {args.command}: {one_line(leaf)}"
+        if args.command == "run" and isinstance(leaf, OSError):    # an actor placement's
+            where = getattr(args, "run_dir", None)                  # write failed
+            line += (f" (run directory {where})" if where else "") + _kept_checkpoint(where)
+        print(line, file=sys.stderr)
         return leaf.code if isinstance(leaf, CliError) else 1
     return 2
 
