@@ -350,9 +350,11 @@ def main(argv: list[str] | None = None) -> int:
         if leaf is None:
             raise
         line = f"qlap {args.command}: {one_line(leaf)}"
-        if args.command == "run" and isinstance(leaf, OSError):    # an actor placement's
-            where = getattr(args, "run_dir", None)                  # write failed
-            line += (f" (run directory {where})" if where else "") + _kept_checkpoint(where)
+        if args.command == "run" and _run_stopped(leaf):   # an actor placement's write failed
+            where = getattr(args, "run_dir", None)          # or its process could not restart
+            if isinstance(leaf, OSError) and where:
+                line += f" (run directory {where})"
+            line += _kept_checkpoint(where)
         print(line, file=sys.stderr)
         return leaf.code if isinstance(leaf, CliError) else 1
     return 2
@@ -566,6 +568,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"qlap run: {exc}" + (f" (run directory {where})" if where else "")
               + _kept_checkpoint(where), file=sys.stderr)
         return 1
+
+
+def _run_stopped(exc: BaseException) -> bool:
+    """A run an actor placement stopped: a write failed (OSError) or an actor could not be
+    restarted (``ActorFailed``)."""
+    from .runtime.supervisor import ActorFailed
+
+    return isinstance(exc, OSError | ActorFailed)
 
 
 def _kept_checkpoint(run_dir: Path | None) -> str:

@@ -126,7 +126,11 @@ def test_a_disk_full_at_the_end_of_a_processes_run_is_one_line_in_bounded_time(t
     assert re.match(r"qlap run: (actor (executor|contingency|world)|process [a-z+]+ "
                     r"\(actors [a-z, ]+\)) exited with code 1 \(OSError: ", lines[-1]), lines[-1]
     assert "No space left on device" in lines[-1]
-    assert lines[-1].endswith("a restart cannot help: run stopped")
+    assert "a restart cannot help: run stopped; " in lines[-1]
+    # what the run keeps, when a checkpoint was whole before the disk filled, or that none was
+    assert re.search(r"; (kept: \S+/checkpoints/step-\d{7} \(go on from it: qlap run "
+                     r"--resume \S+ --out NEW_DIR\)|no checkpoint was kept)$", lines[-1]), \
+        lines[-1]
     assert end - filled[0] < 60
     assert len(metrics.read_text().splitlines()) >= 2       # what was written stays
     assert not (out / "knowledge.json").exists()
