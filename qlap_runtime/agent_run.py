@@ -188,8 +188,9 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
     was doing, for ``qlap eval --trace``.
     """
     if task_name not in world.tasks:
-        raise ValueError(f"{world.name} has no task {task_name!r}; "
-                         f"tasks: {sorted(world.tasks)}")
+        from worlds.evaluate import no_task
+
+        raise ValueError(no_task(world.name, task_name, world.tasks))
     task = world.tasks[task_name]
     idle = "zero" if task.hold_motors_at_zero_without_plan else "babble"
     agent.learning = False

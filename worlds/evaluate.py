@@ -9,7 +9,7 @@ coder) runs through :func:`run_trials` on the same set-ups.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,12 @@ __all__ = ["Policy", "run_random_trials", "run_trials"]
 #: A policy maps (world, observation, goal, rng) to motor values.
 Policy = Callable[[World, Mapping[str, float], Goal, np.random.Generator], Mapping[str, float]]
 
+
+
+def no_task(world: str, task: str, tasks: Iterable[str]) -> str:
+    """One line for a task the world does not have: its tasks, and where the others are."""
+    return (f"{world} has no task {task!r}; its tasks: {', '.join(sorted(tasks)) or 'none'} "
+            "(qlap worlds lists every world's tasks; choose the world with --world)")
 
 def _random_policy(task: Task) -> Policy:
     def policy(
@@ -50,7 +56,7 @@ def run_trials(
     each checkpoint, the random baseline, a tile coder — meets the same set-ups.
     """
     if task_name not in world.tasks:
-        raise ValueError(f"{world.name} has no task {task_name!r}; tasks: {sorted(world.tasks)}")
+        raise ValueError(no_task(world.name, task_name, world.tasks))
     task = world.tasks[task_name]
     rng = np.random.default_rng(seed)               # the set-ups: the same for every policy
     policy_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
@@ -116,5 +122,5 @@ def run_random_trials(world: World, task_name: str, n_trials: int, seed: int) ->
     """The random-motor baseline of a task (see the module docstring)."""
     task = world.tasks.get(task_name)
     if task is None:
-        raise ValueError(f"{world.name} has no task {task_name!r}; tasks: {sorted(world.tasks)}")
+        raise ValueError(no_task(world.name, task_name, world.tasks))
     return run_trials(world, task_name, n_trials, seed, _random_policy(task))

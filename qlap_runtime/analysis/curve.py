@@ -271,8 +271,9 @@ def _check_task(world_spec: str, task: str) -> None:
         raise AnalysisError(f"world {world_spec!r}: {exc}") from None
     try:
         if task not in world.tasks:
-            raise AnalysisError(f"{world_spec} has no task {task!r}; tasks: "
-                                f"{sorted(world.tasks)}")
+            from worlds.evaluate import no_task
+
+            raise AnalysisError(no_task(world_spec, task, world.tasks))
     finally:
         world.close()
 

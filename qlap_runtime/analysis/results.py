@@ -707,8 +707,9 @@ def build_results(cfg: ResultsConfig, echo: Echo = print) -> int:
     known = world_tasks(cfg.world)
     unknown = [t for t in tasks if t not in known]
     if unknown:
-        raise AnalysisError(f"{cfg.world} has no task {', '.join(map(repr, unknown))}; "
-                            f"tasks: {known}")
+        from worlds.evaluate import no_task
+
+        raise AnalysisError(no_task(cfg.world, unknown[0], known))
     if not cfg.seeds:
         raise AnalysisError("give at least one seed")
     if len(set(cfg.seeds)) != len(cfg.seeds):

@@ -108,8 +108,11 @@ def test_every_policy_meets_the_same_set_ups() -> None:
 
 
 def test_unknown_task() -> None:
-    with pytest.raises(ValueError, match="no task 'fly'"):
+    with pytest.raises(ValueError, match="no task 'fly'") as err:
         run_random_trials(make("core"), "fly", 1, 0)
+    assert str(err.value) == ("core has no task 'fly'; its tasks: hit_floor, move_block, pickup "
+                              "(qlap worlds lists every world's tasks; choose the world with "
+                              "--world)")
 
 
 def test_write_png(tmp_path: Path) -> None:
