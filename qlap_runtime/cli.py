@@ -354,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
             where = getattr(args, "run_dir", None)          # or its process could not restart
             if isinstance(leaf, OSError) and where:
                 line += f" (run directory {where})"
-            line += _kept_checkpoint(where)
+            line += kept_checkpoint(where)
         print(line, file=sys.stderr)
         return leaf.code if isinstance(leaf, CliError) else 1
     return 2
@@ -566,7 +566,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except OSError as exc:               # e.g. the disk filled up during the run
         where = getattr(args, "run_dir", None)
         print(f"qlap run: {exc}" + (f" (run directory {where})" if where else "")
-              + _kept_checkpoint(where), file=sys.stderr)
+              + kept_checkpoint(where), file=sys.stderr)
         return 1
 
 
@@ -578,18 +578,21 @@ def _run_stopped(exc: BaseException) -> bool:
     return isinstance(exc, OSError | ActorFailed)
 
 
-def _kept_checkpoint(run_dir: Path | None) -> str:
+def kept_checkpoint(run_dir: Path | None) -> str:
     """What a failed run keeps: its newest complete periodic checkpoint (one with agent.json;
     checkpoints are written whole or not at all) and how to go on from it, or ""."""
     if run_dir is None:
         return ""
-    from .qlap.checkpoint import AGENT_FILE
+    from .qlap.checkpoint import AGENT_FILE, WORLD_FILE
 
     done = sorted(d for d in (Path(run_dir) / "checkpoints").glob("step-*")
                   if (d / AGENT_FILE).is_file())
     if not done:
         return "; no checkpoint was kept"
-    return f"; kept: {done[-1]} (go on from it: qlap run --resume {done[-1]} --out NEW_DIR)"
+    # A realtime run's checkpoint has no world state: only the sync loop continues it (inexactly).
+    sync = "" if (done[-1] / WORLD_FILE).is_file() else " --placement sync"
+    return (f"; kept: {done[-1]} (go on from it: qlap run --resume {done[-1]}{sync} "
+            "--out NEW_DIR)")
 
 
 def _cmd_run_inner(args: argparse.Namespace) -> int:

@@ -399,3 +399,25 @@ def test_a_bad_router_config_file_is_one_line_with_its_place(capsys, tmp_path, t
     code, _, err = qlap(capsys, "router", "--config", str(path))
     line = assert_one_line(code, err, str(path), problem)
     assert ".rs:" not in line and "-->" not in line
+
+
+def test_a_stopped_run_names_the_checkpoint_it_keeps(tmp_path):
+    """What `qlap run` adds to the line of a run stopped by a failed write: its newest whole
+    checkpoint (one with agent.json) and the command that goes on from it — with --placement
+    sync for a realtime run's checkpoint, which holds no world state."""
+    from qlap_runtime.cli import kept_checkpoint
+
+    assert kept_checkpoint(None) == ""
+    assert kept_checkpoint(tmp_path) == "; no checkpoint was kept"
+    ck = tmp_path / "checkpoints"
+    for step in ("step-0010000", "step-0020000"):
+        (ck / step).mkdir(parents=True)
+        (ck / step / "agent.json").write_text("{}")
+    (ck / "step-0030000").mkdir()                       # an actor's part only: not whole
+    newest = ck / "step-0020000"
+    assert kept_checkpoint(tmp_path) == (
+        f"; kept: {newest} (go on from it: qlap run --resume {newest} --placement sync "
+        "--out NEW_DIR)")
+    (newest / "world.json").write_text("{}")
+    assert kept_checkpoint(tmp_path) == (
+        f"; kept: {newest} (go on from it: qlap run --resume {newest} --out NEW_DIR)")
