@@ -64,6 +64,33 @@ def fill(fs: Path, leave: int = 0) -> int:
     return n
 
 
+class FillAt:
+    """A thread that fills ``fs`` once the run's metrics.jsonl reaches ``step``; ``at`` is
+    when it did (None before), :meth:`stop` ends it."""
+
+    def __init__(self, fs: Path, out: Path, step: int, poll_s: float = 0.05) -> None:
+        self.at: float | None = None
+        self._stop = threading.Event()
+
+        def run() -> None:
+            while not self._stop.is_set() and self.at is None:
+                try:
+                    rows = (out / "metrics.jsonl").read_text().splitlines()
+                except OSError:
+                    rows = []
+                if rows and json.loads(rows[-1]).get("step", 0) >= step:
+                    fill(fs)
+                    self.at = time.monotonic()
+                time.sleep(poll_s)
+
+        self._thread = threading.Thread(target=run, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+
 def test_check_out_refuses_a_full_disk_and_a_file(tiny_fs, tmp_path):
     fill(tiny_fs, leave=8 * 2**20)
     with pytest.raises(OutputError, match=r"MB free, a run needs at least 32 MB"):
@@ -93,21 +120,7 @@ def test_a_disk_full_at_the_end_of_a_processes_run_is_one_line_in_bounded_time(t
     docs/decisions.md 90–92)."""
     out = tiny_fs / "run"
     metrics = out / "metrics.jsonl"
-    filled: list[float] = []
-
-    def filler() -> None:
-        while not filled:
-            try:
-                rows = metrics.read_text().splitlines()
-            except OSError:
-                rows = []
-            if rows and json.loads(rows[-1]).get("step", 0) >= 2000:
-                fill(tiny_fs)
-                filled.append(time.monotonic())
-            time.sleep(0.05)
-
-    thread = threading.Thread(target=filler, daemon=True)
-    thread.start()
+    filler = FillAt(tiny_fs, out, 2000)
     proc = subprocess.Popen([sys.executable, "-m", "qlap_runtime.cli", "run", "--headless",
                              "--quiet", "--placement", "processes", "--world", "core2d",
                              "--steps", "6000", "--babble-steps", "1500", "--lag", "200",
@@ -117,8 +130,7 @@ def test_a_disk_full_at_the_end_of_a_processes_run_is_one_line_in_bounded_time(t
     end = time.monotonic()
     left = group_members(proc.pid)                          # its own process group
     r = subprocess.CompletedProcess(proc.args, proc.returncode, "", stderr)
-    filled.append(0.0)                                       # stop the filler
-    thread.join(5)
+    filler.stop()
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 1, r.stderr
     assert "Traceback" not in lines[-1]
@@ -131,7 +143,7 @@ def test_a_disk_full_at_the_end_of_a_processes_run_is_one_line_in_bounded_time(t
     assert re.search(r"; (kept: \S+/checkpoints/step-\d{7} \(go on from it: qlap run "
                      r"--resume \S+ --out NEW_DIR\)|no checkpoint was kept)$", lines[-1]), \
         lines[-1]
-    assert end - filled[0] < 60
+    assert filler.at is not None and end - filler.at < 60
     assert len(metrics.read_text().splitlines()) >= 2       # what was written stays
     assert not (out / "knowledge.json").exists()
     assert left == [], f"processes left in the launcher's group: {left}"
@@ -179,28 +191,13 @@ def test_a_disk_full_mid_run_leaves_only_whole_checkpoints_and_names_the_last(ti
     agent.json (the sync loop leaves none at all; an actor's part may leave an empty one),
     no temporary directory is left, and the kept checkpoint resumes."""
     out = tiny_fs / "run"
-    filled: list[float] = []
-
-    def filler() -> None:
-        metrics = out / "metrics.jsonl"
-        while not filled:
-            try:
-                rows = metrics.read_text().splitlines()
-            except OSError:
-                rows = []
-            if rows and json.loads(rows[-1]).get("step", 0) >= 12_000:
-                fill(tiny_fs)
-                filled.append(time.monotonic())
-            time.sleep(0.02)
-
-    thread = threading.Thread(target=filler, daemon=True)
-    thread.start()
+    filler = FillAt(tiny_fs, out, 12_000, poll_s=0.02)
     r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "run", "--headless",
                         "--quiet", "--placement", placement, "--world", "core", "--steps",
                         "40000", "--out", str(out)], capture_output=True, text=True,
                        timeout=300)
-    filled.append(0.0)
-    thread.join(5)
+    filler.stop()
+    assert filler.at is not None
     last = r.stderr.strip().splitlines()[-1]
     kept = out / "checkpoints" / "step-0010000"
     assert r.returncode == 1, r.stderr
