@@ -351,10 +351,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         line = f"qlap {args.command}: {one_line(leaf)}"
         if args.command == "run" and _run_stopped(leaf):   # an actor placement's write failed
-            where = getattr(args, "run_dir", None)          # or its process could not restart
-            if isinstance(leaf, OSError) and where:
-                line += f" (run directory {where})"
-            line += kept_checkpoint(where)
+            line += _stopped_run_tail(args, leaf)            # or its process could not restart
         print(line, file=sys.stderr)
         return leaf.code if isinstance(leaf, CliError) else 1
     return 2
@@ -564,10 +561,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         return _cmd_run_inner(args)
     except OSError as exc:               # e.g. the disk filled up during the run
-        where = getattr(args, "run_dir", None)
-        print(f"qlap run: {exc}" + (f" (run directory {where})" if where else "")
-              + kept_checkpoint(where), file=sys.stderr)
+        print(f"qlap run: {exc}" + _stopped_run_tail(args, exc), file=sys.stderr)
         return 1
+
+
+def _stopped_run_tail(args: argparse.Namespace, exc: BaseException) -> str:
+    """What follows the error of a stopped run: its directory (for a failed write) and the
+    checkpoint it keeps."""
+    where = getattr(args, "run_dir", None)
+    return ((f" (run directory {where})" if where and isinstance(exc, OSError) else "")
+            + kept_checkpoint(where))
 
 
 def _run_stopped(exc: BaseException) -> bool:

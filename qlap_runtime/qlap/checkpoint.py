@@ -795,23 +795,32 @@ def save_step_checkpoint(agent: Any, checkpoints: str | Path, step: int,
     none). Returns its path (None with ``keep == 0``)."""
     if keep == 0:
         return None
+    path = save_agent_checkpoint(agent, Path(checkpoints) / step_name(step), world, world_state)
+    prune_checkpoints(checkpoints, keep)
+    return path
+
+
+def save_agent_checkpoint(agent: Any, target: str | Path, world: str | None = None,
+                          world_state: Any = None, merge: bool = True) -> Path:
+    """The agent (and the world's state, when given) as one checkpoint directory ``target``,
+    written whole or not at all (:func:`write_checkpoint_dir`)."""
 
     def write(d: Path) -> None:
         save_agent(agent, d, world)
         save_world_state(d, world_state)
 
-    path = write_checkpoint_dir(Path(checkpoints) / step_name(step), write)
-    prune_checkpoints(checkpoints, keep)
-    return path
+    return write_checkpoint_dir(target, write, merge)
 
 
-def write_checkpoint_dir(target: str | Path, write: Callable[[Path], None]) -> Path:
+def write_checkpoint_dir(target: str | Path, write: Callable[[Path], None],
+                         merge: bool = True) -> Path:
     """A checkpoint directory written whole or not at all: ``write`` fills a hidden sibling
     (``.NAME.PID.tmp``), which is then renamed to ``target``. Where ``target`` already exists
-    (the actor placements' world and statistics parts are written into it first; a second
-    save at one step) the files move in one by one, ``agent.json`` — what makes a directory a
-    checkpoint — last. If ``write`` fails (a full disk), the sibling is removed and the error
-    raised: no half-written checkpoint is left under a checkpoint's name."""
+    as a directory it is replaced, or with ``merge`` (the actor placements' world and
+    statistics parts are written into it first; a second save at one step) the files move in
+    one by one, ``agent.json`` — what makes a directory a checkpoint — last. If ``write``
+    fails (a full disk), the sibling is removed and the error raised: no half-written
+    checkpoint is left under a checkpoint's name."""
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.parent / f".{target.name}.{os.getpid()}.tmp"
@@ -819,15 +828,14 @@ def write_checkpoint_dir(target: str | Path, write: Callable[[Path], None]) -> P
     try:
         tmp.mkdir()
         write(tmp)
-        if target.is_symlink() or target.is_file():
-            target.unlink()
-        if not target.is_dir():
+        if target.is_dir() and not target.is_symlink() and merge:
+            for name in sorted((p.name for p in tmp.iterdir()),
+                               key=lambda n: (n == AGENT_FILE, n)):
+                os.replace(tmp / name, target / name)
+            tmp.rmdir()
+        else:
+            _remove(target)             # rename(2) puts a directory only where none is
             os.replace(tmp, target)
-            return target
-        names = sorted(p.name for p in tmp.iterdir())
-        for name in sorted(names, key=lambda n: n == AGENT_FILE):
-            os.replace(tmp / name, target / name)
-        tmp.rmdir()
     except BaseException:
         _remove(tmp)
         raise
@@ -850,21 +858,17 @@ def save_final_checkpoint(agent: Any, checkpoints: str | Path, world: str | None
     root = Path(checkpoints)
     root.mkdir(parents=True, exist_ok=True)
     final = root / "final"
+    same = Path(same_as) if same_as is not None else None
+    if same is None or same.parent.resolve() != root.resolve() \
+            or not (same / AGENT_FILE).is_file():
+        return save_agent_checkpoint(agent, final, world, world_state, merge=False)
     tmp = root / f".final-{os.getpid()}.tmp"
     _remove(tmp)
-    same = Path(same_as) if same_as is not None else None
-    if same is not None and same.parent.resolve() == root.resolve() \
-            and (same / "agent.json").is_file():
-        try:
-            os.symlink(same.name, tmp, target_is_directory=True)
-        except OSError:                                     # no links here: a marker file
-            tmp.write_text(f"{LINK_MARKER} {same.name}\n")
-    else:
-        save_agent(agent, tmp, world)
-        save_world_state(tmp, world_state)
-    if tmp.is_dir() and not tmp.is_symlink():
-        _remove(final)                  # rename(2) puts a directory only where none is
-    elif final.is_dir() and not final.is_symlink():
+    try:
+        os.symlink(same.name, tmp, target_is_directory=True)
+    except OSError:                                         # no links here: a marker file
+        tmp.write_text(f"{LINK_MARKER} {same.name}\n")
+    if final.is_dir() and not final.is_symlink():
         shutil.rmtree(final)
     os.replace(tmp, final)
     return final

@@ -727,7 +727,7 @@ class ModelLearner:
             if not passing.any():
                 continue
             r: ModelStats | None = None
-            best: tuple | None = None
+            best: tuple[DBNLandmark, tuple] | None = None    # the landmark, its proposal
             for i, q, gi in np.argwhere(passing).tolist():
                 v = real_vars[i]
                 var = v.index
@@ -743,7 +743,7 @@ class ModelLearner:
                 if cut is None or not is_candidate(cut.gain, prob[i, q], p.theta_ig):
                     continue
                 wgain = cut.gain * prob[i, q]
-                if best is not None and wgain <= best[0]:
+                if best is not None and wgain <= best[0].wgain:
                     continue
                 lb, ub = candidate_range(cut, float(col[in_q].min()),
                                          float(col[in_q].max()),
@@ -759,12 +759,11 @@ class ModelLearner:
                     r = self.evaluator(dbn)(dbn.context)
                 prop = self._landmark_proposal(dbn, r, var, lb, ub, X)
                 if prop is not None:
-                    best = (wgain, dbn_id, var, q, prop)
+                    best = (DBNLandmark(wgain, dbn_id, var, q, prop[0], prop[1]), prop)
             if best is not None:
                 assert r is not None
-                wgain, _, var, q, prop = best
-                found.append(DBNLandmark(wgain, dbn_id, var, q, prop[0], prop[1]))
-                props[dbn_id] = (prop, r, X)
+                found.append(best[0])
+                props[dbn_id] = (best[1], r, X)
         # D.2 items 1–3, decided on the quantity spaces before this execution; then applied.
         motors = {v.index for v in self.table.of_kind(Kind.MOTOR)}
 

@@ -31,7 +31,7 @@ import trio
 from .. import telemetry
 from ..bus.bridge import Publisher, RejectionCounter
 from ..bus.schema import Control
-from ..qlap.checkpoint import save_agent, save_world_state, write_checkpoint_dir
+from ..qlap.checkpoint import save_agent_checkpoint
 from .controls import ControlError, RunControl
 
 log = logging.getLogger("qlap.runner")
@@ -118,13 +118,8 @@ class Runner:
             target = self._confined(path) if path else \
                 self.checkpoints / f"step-{max(self.agent.step_count + 1, 0):07d}"
             try:
-                state = self.world_state() if self.world_state is not None else None
-
-                def write(d: Path) -> None:
-                    save_agent(self.agent, d, self.world_spec)
-                    save_world_state(d, state)
-
-                write_checkpoint_dir(target, write)
+                save_agent_checkpoint(self.agent, target, self.world_spec,
+                                None if self.world_state is None else self.world_state())
                 self.message = f"saved {target}"
             except Exception as e:                  # a bad path must not stop the run
                 log.warning("save to %s failed: %s", target, e)

@@ -23,9 +23,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import tempfile
 import time
 import zlib
 from collections.abc import Callable, Mapping, Sequence
@@ -34,7 +31,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ...qlap.checkpoint import atomic_write_bytes
+from ...qlap.checkpoint import atomic_write_bytes, write_checkpoint_dir
 
 __all__ = [
     "BABBLE_MAX_HOLD",
@@ -239,23 +236,16 @@ class HeldPolicy:
 
 def save_checkpoint(directory: Path, meta: Mapping[str, Any],
                     arrays: Mapping[str, np.ndarray]) -> Path:
-    """``directory`` with ``meta.json`` and one ``NAME.npy`` per array, written to a temporary
-    directory beside it and renamed into place (an older one is replaced)."""
-    directory = Path(directory)
-    directory.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=directory.parent, prefix=f".{directory.name}."))
-    try:
+    """``directory`` with ``meta.json`` and one ``NAME.npy`` per array, written whole or not
+    at all (``write_checkpoint_dir``; an older one is replaced)."""
+
+    def write(tmp: Path) -> None:
         for name, arr in arrays.items():
             with open(tmp / f"{name}.npy", "wb") as f:
                 np.save(f, np.asarray(arr), allow_pickle=False)
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
-        if directory.exists():
-            shutil.rmtree(directory)
-        os.replace(tmp, directory)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return directory
+
+    return write_checkpoint_dir(directory, write, merge=False)
 
 
 def load_checkpoint(directory: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
