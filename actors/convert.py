@@ -277,13 +277,21 @@ class LocalRequests:
     def take(self, run_id: str, step: int) -> tuple[Agent, bool]:
         """The request's agent, and whether its learner holds the batch's deltas already."""
         with self.lock:
-            copy, state = self.agents.pop((run_id, step))
+            held = self.agents.pop((run_id, step), None)
+        if held is None:
+            raise BadRequest(f"no agent was handed over in this process for step {step}")
+        copy, state = held
         if state is BATCHED:
             return copy, True
         if state is not None:
             copy.learner = restore_learner(*state)
             self.pool.give_back(state[1].values())      # the learner copied what it reads
         return copy, False
+
+
+class BadRequest(ValueError):
+    """A ``planreq`` that names no agent: files that are not base64 or not an agent's
+    checkpoint, or a local request with nothing handed over (a forged or damaged message)."""
 
 
 BATCHED = object()
@@ -305,16 +313,20 @@ def plan_request(agent: Agent, step: int) -> PlanRequest:
 def compile_request(msg: PlanRequest, deltas: list[Delta], lag: int,
                     run_id: str = "") -> PlanDelta:
     """The planner's work: the request's agent, the batch's ``deltas`` applied to its learner,
-    compiled (:meth:`~qlap_runtime.qlap.agent.Agent.compile_plans`)."""
+    compiled (:meth:`~qlap_runtime.qlap.agent.Agent.compile_plans`). :class:`BadRequest` (before
+    anything is compiled) when the request holds no agent."""
     applied = False
     if msg.local:
         agent, applied = LOCAL.take(run_id, msg.step)
     else:
         with tempfile.TemporaryDirectory(prefix="qlap-planreq-", dir=SCRATCH) as tmp:
-            for name in REQUEST_FILES:
-                (Path(tmp) / name).write_bytes(base64.b64decode(msg.files[name],
-                                                                validate=True))
-            agent = load_agent(tmp)
+            try:
+                for name in REQUEST_FILES:
+                    (Path(tmp) / name).write_bytes(base64.b64decode(msg.files[name],
+                                                                    validate=True))
+                agent = load_agent(tmp)
+            except (ValueError, KeyError) as e:     # binascii.Error, CheckpointError
+                raise BadRequest(f"planreq({msg.step}): {type(e).__name__}: {e}") from None
     for d in () if applied else deltas:
         agent.learner.apply_delta(d)
     return agent.compile_plans(msg.step, msg.step + lag)

@@ -69,7 +69,7 @@ class ExecutorActor(ExecutorLifecycle):
         if rejected:
             self.deltas.book.skipped.add(t)
             self.links.rejected(t)
-            self.files.rejected.append(f"step {t}: {rejected}")
+            self.files.rejected.add(f"step {t}: {rejected}")
             self.handover.observed(t, None)                 # no batch at t
             motor = Motor(t, dict(agent.motor))
         else:

@@ -67,8 +67,8 @@ class ExecutorLifecycle(ActorBase):
         self.files.after_step(t, p, self.controls.runner.agent_changes)
         self.handover.after_step(t, agent.learner)
         if actor.snapshot_due(t):
-            actor.snapshot(t, lambda d: save_agent(agent, d), rejected=self.files.rejected,
-                           **self.links.logs())
+            actor.snapshot(t, lambda d: save_agent(agent, d),
+                           rejected=self.files.rejected.to_state(), **self.links.logs())
         if self.chain is not None:
             self.controls.commands.at_boundary = True
 

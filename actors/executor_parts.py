@@ -21,7 +21,7 @@ from typing import Any
 import trio
 
 from qlap_runtime.bus.schema import PlanRequest
-from qlap_runtime.metrics import METRICS_FILE, MetricsLog, summary_of
+from qlap_runtime.metrics import METRICS_FILE, MetricsLog, Rejections, summary_of
 from qlap_runtime.qlap.agent import Agent
 from qlap_runtime.qlap.checkpoint import (
     atomic_write_json,
@@ -190,7 +190,7 @@ class Files:
         self.ctx, self.agent, self.t_start = ctx, agent, time.perf_counter()
         self.metrics = MetricsLog(Path(ctx.out) / METRICS_FILE, agent, start=resume.step + 1,
                                   every=ctx.metrics_every) if ctx.out is not None else None
-        self.rejected: list[str] = list(resume.state.get("rejected", []))
+        self.rejected = Rejections.from_state(resume.state.get("rejected"))
         """The observations rejected (``step t: why``), a snapshot's ones first."""
         # The last periodic checkpoint: (agent step, agent commands applied by then, its path).
         self.last_saved: tuple[int, int, Path | None] = (-1, -1, None)
@@ -225,8 +225,8 @@ class Files:
 
     def result(self, steps_done: int, quit_at: int | None) -> dict[str, Any]:
         """The executor's part of its result."""
-        return {"rejected_observations": len(self.rejected),
-                "rejected_examples": self.rejected[:20], "wall_s": self.wall(),
+        return {"rejected_observations": self.rejected.count,
+                "rejected_examples": list(self.rejected.examples), "wall_s": self.wall(),
                 "steps_done": steps_done, **({} if quit_at is None else {"quit_at_step": quit_at})}
 
     def final(self, steps: int, changes: int) -> None:

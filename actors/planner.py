@@ -25,7 +25,7 @@ from qlap_runtime.runtime.inbox import RunEnded
 from qlap_runtime.runtime.lockstep import batch_kinds
 from qlap_runtime.runtime.rules import planreq_rule
 
-from .convert import REQUEST_FILES, compile_request
+from .convert import REQUEST_FILES, BadRequest, compile_request
 
 NAME = "planner"
 
@@ -55,7 +55,8 @@ class PlannerActor(ActorBase):
         self.actor = actor = Actor(session, ctx, NAME)
         # Requests come at batch steps only; a restart resumes at one (see batch).
         self.requests = actor.input("planreq", window=ctx.replay_keep,
-                                    rule=planreq_rule(REQUEST_FILES))
+                                    rule=planreq_rule(REQUEST_FILES,
+                                                      ctx.together(NAME, "executor")))
         self.deltas = actor.deltas(len(VariableTable.from_specs(world_variables(ctx.world)[0])))
         self.out = actor.output("delta/plans")
         actor.restore_log(self.out, actor.resume.state.get("own", []))
@@ -68,22 +69,33 @@ class PlannerActor(ActorBase):
         against 0.33 s inline in the synchronous loop) and gains nothing from the wait."""
 
     async def batch(self, t: int) -> bool:
-        """Answer ``planreq(t)``; False when the run ended (before t, or at the last step)."""
-        try:
-            req = await self.requests.get(t)
-        except RunEnded:
-            return False
-        if req.last:
-            return False
-        if req.rejected:                        # no batch at t: nothing to compile
-            self.deltas.book.skipped.add(t)
-            return True
-        due = await self.deltas.due(t + self.ctx.params.batch_lag)
-        t0 = time.perf_counter()
-        self.actor.slot.busy(1)
-        args = (req, due, self.ctx.params.batch_lag, self.ctx.run_id)
-        delta = compile_request(*args) if self.inline else await to_thread(compile_request, *args)
-        self.actor.slot.busy(0)
+        """Answer ``planreq(t)``; False when the run ended (before t, or at the last step).
+        A request that holds no agent is counted and asked for again (:class:`BadRequest`)."""
+        due: list | None = None
+        while True:
+            try:
+                req = await self.requests.get(t)
+            except RunEnded:
+                return False
+            if req.last:
+                return False
+            if req.rejected:                        # no batch at t: nothing to compile
+                self.deltas.book.skipped.add(t)
+                return True
+            if due is None:                         # handed out once
+                due = await self.deltas.due(t + self.ctx.params.batch_lag)
+            t0 = time.perf_counter()
+            self.actor.slot.busy(1)
+            args = (req, due, self.ctx.params.batch_lag, self.ctx.run_id)
+            try:
+                delta = compile_request(*args) if self.inline \
+                    else await to_thread(compile_request, *args)
+                break
+            except BadRequest as e:
+                self.actor.counter.reject(self.requests.key, str(e))
+                self.requests.again(t)
+            finally:
+                self.actor.slot.busy(0)
         self.compile_s.append(time.perf_counter() - t0)
         self.out.put(t, PlanDeltaMsg.of(delta))
         self.actor.slot.done(t)

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .errors import WorldFailed
-from .metrics import METRICS_EVERY, METRICS_FILE, MetricsLog, summary_of
+from .metrics import METRICS_EVERY, METRICS_FILE, MetricsLog, Rejections, summary_of
 from .qlap import Params
 from .qlap.agent import Agent
 from .qlap.checkpoint import (
@@ -81,7 +81,7 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     agent = agent or Agent(world.variables, params, seed=seed)
     obs = world.observe() if restored else world.reset(seed=seed)
     motor = dict(agent.motor)
-    rejected: list[str] = []
+    rejected = Rejections()
     world_spec = getattr(world, "spec", None) or getattr(world, "name", None)
     start = agent.step_count + 1
     ckpts = Path(out) / "checkpoints" if out is not None else None
@@ -99,7 +99,7 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
                 motor = agent.step(t, obs,
                                    discontinuity=bool(getattr(world, "discontinuity", False)))
             except InvalidObservation as exc:
-                rejected.append(f"step {t}: {exc}")
+                rejected.add(f"step {t}: {exc}")
             try:
                 obs = world.step(motor)
             except Exception as exc:        # the world broke: keep what was learned up to t

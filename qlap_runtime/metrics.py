@@ -25,6 +25,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -283,8 +284,35 @@ def follow_metrics(path: str | Path, on_line: LineFn, stop: threading.Event,
     return thread
 
 
+@dataclass
+class Rejections:
+    """The observations a run rejected (a NaN, an unknown variable): how many, and the first
+    :attr:`KEEP` of them as ``step t: why`` — bounded, however many steps are rejected."""
+
+    KEEP = 20
+    count: int = 0
+    examples: list[str] = field(default_factory=list)
+
+    def add(self, what: str) -> None:
+        self.count += 1
+        if len(self.examples) < self.KEEP:
+            self.examples.append(what)
+
+    def to_state(self) -> dict[str, Any]:
+        return {"count": self.count, "examples": list(self.examples)}
+
+    @classmethod
+    def from_state(cls, state: Any) -> Rejections:
+        """From :meth:`to_state` (or a list of examples, as snapshots held them before)."""
+        if isinstance(state, list):
+            return cls(len(state), [str(e) for e in state[:cls.KEEP]])
+        if not state:
+            return cls()
+        return cls(int(state["count"]), [str(e) for e in state["examples"][:cls.KEEP]])
+
+
 def summary_of(agent: Agent, world: Any, seed: int, steps: int, wall: float,
-               rejected: list[str], placement: str = "sync") -> dict[str, Any]:
+               rejected: Rejections, placement: str = "sync") -> dict[str, Any]:
     """summary.json's figures of a run (docs/outputs.md); the counts are those of the metrics
     log (:func:`~qlap_runtime.metrics.knowledge_counts`), so the two agree. ``placement``:
     ``sync`` (the synchronous loop) or ``local`` (the terminal UI's agent thread)."""
@@ -301,5 +329,5 @@ def summary_of(agent: Agent, world: Any, seed: int, steps: int, wall: float,
         "practice_calls": c.practice_calls, "babble_commands": c.babble_commands,
         "practice_successes": c.successes, "practice_failures": c.failures,
         "plans_created": c.plans_created, "plans_removed": c.plans_removed,
-        "rejected_observations": len(rejected), "rejected_examples": rejected[:20],
+        "rejected_observations": rejected.count, "rejected_examples": list(rejected.examples),
     }

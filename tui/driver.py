@@ -40,6 +40,8 @@ from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import RejectionCounter, declare_alive
 from qlap_runtime.bus.config import embedded_config
 from qlap_runtime.bus.schema import Control
+from qlap_runtime.errors import WorldFailed
+from qlap_runtime.metrics import Rejections
 from qlap_runtime.runtime.background import CheckpointWriter
 from qlap_runtime.runtime.controls import RunControl
 from qlap_runtime.runtime.runner import Display, Runner
@@ -112,7 +114,7 @@ class LocalDriver:
         self._last_saved: tuple[int, int, Path | None] = (-1, -1, None)
         self._writer = CheckpointWriter()
         """Writes the periodic checkpoints off this loop (docs/decisions.md 107)."""
-        self._rejected: list[str] = []
+        self._rejected = Rejections()
         self._outputs_written = False
         self.cadence = cadence or telemetry.Cadence()
         self.on_finish = on_finish
@@ -291,8 +293,12 @@ class LocalDriver:
                                          discontinuity=bool(getattr(world, "discontinuity", False)))
             except InvalidObservation as e:
                 log.warning("step %d: %s", t, e)
-                self._rejected.append(f"step {t}: {e}")
-            self._obs = world.step(self._motor)
+                self._rejected.add(f"step {t}: {e}")
+            try:
+                self._obs = world.step(self._motor)
+            except Exception as exc:
+                self._world_failed(t, exc)
+                continue
             self.steps_done += 1
             self._record(t)
             if clock.budget > 0:
@@ -319,6 +325,22 @@ class LocalDriver:
                 self.on_finish(self)
         if self._metrics is not None:
             self._metrics.close()
+
+    def _world_failed(self, t: int, exc: Exception) -> None:
+        """The world's step after agent step ``t`` raised: the run ends there as the
+        synchronous loop's does — the outputs of what was learned up to t are written (no
+        world state in the final checkpoint) — and the UI shows why until it is quit."""
+        self.steps_done += 1
+        self.error = WorldFailed(str(self.world_spec or type(self.world).__name__), t, exc)
+        log.error("%s", self.error)
+        self.runner.message = str(self.error)
+        if self.display is not None:
+            self.display.finish()
+        self.write_outputs()
+        if self.on_finish is not None:
+            self.on_finish(self)
+        self.finished = self.runner.finished = True         # last: the outputs are there
+        self._publish(time.perf_counter(), force=True)
 
     # ----------------------------------------------------------------------------- outputs
     def _world_state(self) -> Any:
@@ -361,14 +383,17 @@ class LocalDriver:
         if self._metrics is not None:
             self._metrics.finish(agent.step_count + 1, agent)
         atomic_write_json(self.out / "knowledge.json", agent.knowledge())
-        atomic_write_json(self.out / "summary.json",
-                          summary_of(agent, self.world, self.seed, self.steps_done, wall,
-                                     self._rejected, placement=PLACEMENT))
+        summary = summary_of(agent, self.world, self.seed, self.steps_done, wall,
+                             self._rejected, placement=PLACEMENT)
+        failed = isinstance(self.error, WorldFailed)
+        if failed:
+            summary["world_error"] = str(self.error)
+        atomic_write_json(self.out / "summary.json", summary)
         step, changes, path = self._last_saved
         same = path if (step, changes) == (agent.step_count, self.runner.agent_changes) \
             else None
         save_final_checkpoint(agent, self.out / "checkpoints", self.world_spec, same_as=same,
-                              world_state=world_state_of(self.world))
+                              world_state=None if failed else world_state_of(self.world))
         from qlap_runtime.analysis.plot import plot_run_if_possible
 
         plot_run_if_possible(self.out)                   # metrics.png beside the metrics log

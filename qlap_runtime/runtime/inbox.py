@@ -160,6 +160,13 @@ class StepInbox:
         if step >= self.next:
             self.next = step + 1
 
+    def again(self, step: int) -> None:
+        """Take step ``step``'s message again: the one :meth:`get` returned could not be used
+        (a forgery that passed the rules); the next one for ``step``, or the writer's logged
+        one (the refill), replaces it."""
+        self.drop(step)
+        self.next = min(self.next, step)
+
     def ready(self, step: int) -> bool:
         """Whether step ``step``'s message is here (what has arrived is kept first)."""
         if step not in self.buf:

@@ -157,10 +157,15 @@ def delta_rule(params: Params, n_vars: int, realtime: bool = False) -> Rule:
     return check
 
 
-def planreq_rule(files: tuple[str, ...]) -> Rule:
-    """``planreq``: the checkpoint files of an agent and nothing else (a rejected step: none)."""
+def planreq_rule(files: tuple[str, ...], local: bool) -> Rule:
+    """``planreq``: the checkpoint files of an agent and nothing else (a rejected step: none);
+    ``local``: the planner shares the executor's process, whose requests hand the agent over
+    in memory (no files), and only then."""
 
     def check(msg: Any) -> str | None:
+        if msg.local != local and not (msg.rejected or msg.last):
+            return (f"planreq({msg.step}): local {msg.local}, but this planner "
+                    f"{'shares' if local else 'does not share'} the executor's process")
         want = set() if msg.rejected or msg.last or msg.local else set(files)
         if set(msg.files) != want:
             return f"planreq({msg.step}): files {sorted(msg.files)} (expected {sorted(want)})"

@@ -127,7 +127,10 @@ class Runner:
 
     def _confined(self, path: str) -> Path:
         root = (self.out if self.out is not None else self.checkpoints).resolve()
-        target = (root / path).resolve()
+        try:
+            target = (root / path).resolve()
+        except (OSError, ValueError) as e:              # e.g. an embedded NUL byte
+            raise ControlError(f"path {path!r}: {e}") from None
         if target == root or not target.is_relative_to(root):
             raise ControlError(f"path {path!r} is outside the run directory {root}")
         return target

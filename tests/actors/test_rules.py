@@ -5,20 +5,23 @@ logged and dropped; it never reaches the physics or the algorithm."""
 
 from __future__ import annotations
 
+import base64
 import json
 
 import numpy as np
+import pytest
 import trio
 
 import worlds
+from actors.convert import REQUEST_FILES, BadRequest, compile_request
 from qlap_runtime.bus import keys
 from qlap_runtime.bus.bridge import RejectionCounter, TrioSubscriber
 from qlap_runtime.bus.qrecord import QRecord, encode_record
-from qlap_runtime.bus.schema import Control, DeltaMsg, Motor, QState, Sense, encode
+from qlap_runtime.bus.schema import Control, DeltaMsg, Motor, PlanRequest, QState, Sense, encode
 from qlap_runtime.placements.launcher import run_embedded_async
 from qlap_runtime.qlap import Params
 from qlap_runtime.runtime.inbox import MAX_PENDING_BYTES, StepInbox
-from qlap_runtime.runtime.rules import delta_rule, motor_rule, op_problem
+from qlap_runtime.runtime.rules import delta_rule, motor_rule, op_problem, planreq_rule
 from tests.actors.test_lockstep import STEPS, context, sync_knowledge
 
 PARAMS = Params(babble_steps=1500, dbn_period=500, landmark_period=1000)
@@ -58,6 +61,9 @@ def forger(escape: str):
                     session.put(k("qstate"), bogus_record(t).payload[:-1])
                     session.put(k("sense"), encode(Sense(t + 100, {"h_x": 0.0})))
                     session.put(k("control"), encode(Control("save", {"path": escape})))
+                    # files where the planner shares the executor's process (no files there)
+                    session.put(k("planreq"), encode(PlanRequest(
+                        t + 400, {name: "!!" for name in REQUEST_FILES})))
                 if len(done) == len(FORGE_AT):
                     return
 
@@ -78,8 +84,8 @@ def test_rule_breaking_messages_are_counted_and_change_nothing(tmp_path):
     assert actors["contingency"]["rejected"] == 5 * n
     assert actors["landmarks"]["rejected"] == 5 * n
     assert actors["executor"]["rejected"] == 6 * n       # ... and the save outside the run
-    assert actors["planner"]["rejected"] == 2 * n        # the two bad deltas
-    assert summary["rejected_messages"] == 24 * n
+    assert actors["planner"]["rejected"] == 3 * n        # the two bad deltas, the planreq
+    assert summary["rejected_messages"] == 25 * n
     assert not (tmp_path / "escaped").exists()
     got = (out / "knowledge.json").read_text()
     assert json.loads(got)["dbns"]
@@ -120,3 +126,34 @@ def test_pending_future_messages_are_bounded_in_bytes():
     assert inbox.pending_bytes == 9 * size
     inbox.drop(1)
     assert inbox.pending_bytes == 8 * size
+
+
+def test_planreq_rule_and_a_request_that_holds_no_agent(tmp_path):
+    """A planreq must fit the placement (in memory beside the executor, files elsewhere); one
+    whose files are not an agent's checkpoint is a BadRequest, raised before any compilation
+    (the planner counts it and takes the request again: StepInbox.again)."""
+    files = {name: "" for name in REQUEST_FILES}
+    beside, apart = planreq_rule(REQUEST_FILES, True), planreq_rule(REQUEST_FILES, False)
+    assert beside(PlanRequest(500, local=True)) is None
+    assert apart(PlanRequest(500, files)) is None
+    assert "does not share" in apart(PlanRequest(500, local=True))
+    assert "shares" in beside(PlanRequest(500, files))
+    assert beside(PlanRequest(500, last=True)) is None and apart(PlanRequest(7, rejected=True)) \
+        is None
+    with pytest.raises(BadRequest, match=r"planreq\(500\): Error"):          # not base64
+        compile_request(PlanRequest(500, {name: "!!" for name in REQUEST_FILES}), [], 0)
+    junk = {name: base64.b64encode(b"not a checkpoint").decode() for name in REQUEST_FILES}
+    with pytest.raises(BadRequest, match=r"planreq\(500\)"):
+        compile_request(PlanRequest(500, junk), [], 0)
+    with pytest.raises(BadRequest, match="no agent was handed over .* step 500"):
+        compile_request(PlanRequest(500, local=True), [], 0, run_id="nobody")
+
+
+def test_a_step_inbox_takes_a_step_again():
+    inbox = StepInbox(None, first=10)  # type: ignore[arg-type]
+    assert inbox.add(PlanRequest(10, local=True)) and inbox.add(PlanRequest(11, local=True))
+    assert trio.run(inbox.get, 10).step == 10 and inbox.next == 11
+    assert not inbox.add(PlanRequest(10, local=True))              # consumed: a duplicate
+    inbox.again(10)
+    assert inbox.next == 10 and inbox.add(PlanRequest(10, files={"x": ""}))
+    assert trio.run(inbox.get, 10).files == {"x": ""} and inbox.next == 12 - 1

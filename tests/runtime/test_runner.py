@@ -50,8 +50,9 @@ def test_the_control_stream_sets_the_clock_and_the_agent(tmp_path: Path):
     assert r.message == f"saved {(tmp_path / 'mine').resolve()}"
     assert counter.snapshot().total == 0
     r.apply([Control("step", {"n": "many"}), Control("speed", {"steps_per_s": [1]}),
-             Control("save", {"path": "../elsewhere"}), Control("goal", {"var": 3})])
-    assert counter.snapshot().total == 4
+             Control("save", {"path": "../elsewhere"}), Control("save", {"path": "a\x00b"}),
+             Control("goal", {"var": 3})])
+    assert counter.snapshot().total == 5
     assert r.message.startswith("goal refused") and not (tmp_path.parent / "elsewhere").exists()
     assert r.clock.budget == 3 and r.clock.speed == 40          # the refused changed nothing
     r.finished = True
