@@ -25,6 +25,7 @@ either.
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -432,12 +433,13 @@ def _free_loopback_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
-def _child_main(spec: dict[str, Any], ready: Any = None) -> None:
-    """Entry point of the agent process (spawn): a LocalDriver listening on loopback."""
+def _child_main(spec_json: str, ready: Any = None) -> None:
+    """Entry point of the agent process (spawn): a LocalDriver listening on loopback, from
+    :class:`DriverProcess`'s spec as JSON text (no pickled object crosses)."""
     import worlds
     from qlap_runtime.qlap import Params
 
-    spec = dict(spec)
+    spec = json.loads(spec_json)
     # Take every key that is not a LocalDriver argument out of the spec unconditionally:
     # popping only when truthy left ``params={}`` (the default of ``qlap run``) in the spec,
     # so it reached LocalDriver twice (issue 12).
@@ -463,7 +465,7 @@ class DriverProcess:
     :attr:`endpoint` (``client_config(endpoint)``); ``quit`` on the control topic, or
     :meth:`stop`, ends it.
 
-    ``params`` is a dict of :class:`~qlap_runtime.qlap.Params` overrides (picklable); the other
+    ``params`` is a dict of :class:`~qlap_runtime.qlap.Params` overrides (JSON values); the other
     keyword arguments go to :class:`LocalDriver` (``seed``, ``steps``, ``speed``, ``paused``,
     ``checkpoint_dir``, ``keep_checkpoints``); ``out`` is the run directory: checkpoints, the
     metrics log, and knowledge.json, summary.json and a final checkpoint when the last step is
@@ -494,7 +496,7 @@ class DriverProcess:
             spec["checkpoint_dir"] = str(spec["checkpoint_dir"])
         ctx = mp.get_context("spawn")
         self._ready = ctx.Event()
-        self._process = ctx.Process(target=_child_main, args=(spec, self._ready),
+        self._process = ctx.Process(target=_child_main, args=(json.dumps(spec), self._ready),
                                     name=f"qlap-agent-{self.run_id}", daemon=True)
 
     def start(self, timeout: float = 60.0) -> DriverProcess:

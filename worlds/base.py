@@ -228,7 +228,7 @@ class World(abc.ABC):
         self.observation = {}
         self.previous_observation = {}
         if not hasattr(self, "rng"):
-            self.rng = np.random.default_rng()
+            self.rng = np.random.default_rng(0)         # reset(seed=...) gives a run its own
 
     @property
     def motor_names(self) -> tuple[str, ...]:
@@ -247,12 +247,14 @@ class World(abc.ABC):
     # --- the contract ---------------------------------------------------------------------
 
     def reset(self, seed: int | None = None) -> dict[str, float]:
-        """Start over (seeding the world's generator) and return the first observation.
+        """Start over and return the first observation: with ``seed``, the world's generator
+        seeded from it; without, the generator goes on (Gymnasium's convention; a world is
+        built with a generator seeded 0), so no reset draws from the OS's entropy.
 
         The observation maps each sensed variable (magnitude and nominal, not motors) available
         at step 0 to a finite float.
         """
-        return self._start(np.random.default_rng(seed))
+        return self._start(self.rng if seed is None else np.random.default_rng(seed))
 
     def _start(self, rng: np.random.Generator) -> dict[str, float]:
         """Reset with the generator ``rng`` (a new seed, or a replay's saved start)."""
@@ -420,7 +422,7 @@ class World(abc.ABC):
         else:
             if "physics" not in state:
                 raise ValueError(f"{self.name}: the world state has no 'physics'")
-            rng = np.random.default_rng()
+            rng = np.random.default_rng(0)               # its state is set next
             rng.bit_generator.state = dict(state["rng"])
             self.rng = rng
             self._set_state(state["physics"])
@@ -449,7 +451,7 @@ class World(abc.ABC):
                              f"the state says {step_count}")
         if not np.isfinite(motors).all():
             raise ValueError(f"{self.name}: the replay holds non-finite motor values")
-        rng = np.random.default_rng()
+        rng = np.random.default_rng(0)               # its state is set next
         rng.bit_generator.state = dict(replay["rng"])
         self._start(rng)
         for row in motors.reshape(step_count, n).tolist():

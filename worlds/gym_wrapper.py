@@ -107,7 +107,7 @@ class GymWorld(World):
         self.agent_options = MappingProxyType({})
         self.episodes = 0
         self.step_seconds = _step_seconds(getattr(self.env.unwrapped, "dt", None))
-        self.reset()
+        self.reset(seed=0)
 
     def _as_obs(self, raw: Any) -> dict[str, float]:
         return dict(

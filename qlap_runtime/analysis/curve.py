@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import multiprocessing
 import os
@@ -161,6 +162,12 @@ def evaluate_job(job: EvalJob) -> dict[str, Any]:
     return {"mean_reward": res["mean_reward"], "stderr": res["stderr_reward"],
             "success_rate": res["success_rate"], "trials": res["n_trials"],
             "seconds": time.perf_counter() - t0}
+
+
+def evaluate_job_json(job: str) -> str:
+    """:func:`evaluate_job` across a process boundary: the job and its result as JSON text
+    (what crosses to a worker process is a string, never a pickled object)."""
+    return json.dumps(evaluate_job(EvalJob(**json.loads(job))))
 
 
 @dataclass(frozen=True)
@@ -322,13 +329,14 @@ def _run_pending(pending: list[tuple[Key, EvalJob, Checkpoint | None]], jobs: in
     pool = ProcessPoolExecutor(max_workers=min(jobs, len(pending)),
                                mp_context=multiprocessing.get_context("spawn"))
     try:
-        futures: dict[Future[dict[str, Any]], tuple[Key, EvalJob, Checkpoint | None]] = {
-            pool.submit(evaluate_job, job): (key, job, c) for key, job, c in pending}
+        futures: dict[Future[str], tuple[Key, EvalJob, Checkpoint | None]] = {
+            pool.submit(evaluate_job_json, json.dumps(asdict(job))): (key, job, c)
+            for key, job, c in pending}
         for i, fut in enumerate(as_completed(futures), 1):
             key, job, c = futures[fut]
             what = f"{c.run} {c.name} (step {c.step})" if c else "random policy"
             try:
-                res = fut.result()
+                res = json.loads(fut.result())
             except Exception as exc:   # a bad checkpoint must not stop the others
                 failures += 1
                 echo(f"[{i}/{len(pending)}] {what}: FAILED: {type(exc).__name__}: {exc}")

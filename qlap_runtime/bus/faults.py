@@ -14,11 +14,13 @@ put directly.
 from __future__ import annotations
 
 import logging
-import random
 import threading
+import zlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
+
+import numpy as np
 
 log = logging.getLogger("qlap.bus")
 
@@ -96,7 +98,8 @@ class FaultInjector:
 
     def __init__(self, faults: Faults, topic: str, tag: str = "") -> None:
         self.faults, self.topic = faults, topic
-        self._rng = random.Random(f"{faults.seed}/{tag}/{topic}")
+        self._rng = np.random.default_rng(
+            [faults.seed, zlib.crc32(tag.encode()), zlib.crc32(topic.encode())])
         self.dropped = 0
         self.delayed = 0
         self._closed = False

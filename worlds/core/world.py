@@ -278,7 +278,7 @@ class CoreWorld(World):
 
         self.tasks = MappingProxyType(core_tasks(self))
         self.agent_options = MappingProxyType({})
-        self.reset()
+        self.reset(seed=0)
 
     # --- model ------------------------------------------------------------------------------
 

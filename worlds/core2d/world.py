@@ -147,7 +147,7 @@ class Core2DWorld(World):
         self._init_variables(with_resolution(VARIABLES, RESOLUTION))
         self.tasks = MappingProxyType({"move_block": MoveBlock2D()})
         self.agent_options = MappingProxyType({})
-        self.reset()
+        self.reset(seed=0)
 
     def _build(self) -> None:
         space = pymunk.Space()

@@ -113,7 +113,7 @@ class PongWorld(World):
         self.tasks = MappingProxyType({"pong_volley": PongVolley()})
         self.agent_options = MappingProxyType({"k_fixed": 6, "nrp": True})
         self.random_paddles = random_paddles
-        self.reset()
+        self.reset(seed=0)
 
     def _new_volley(self) -> None:
         rng = self.rng
