@@ -576,7 +576,7 @@ def _stopped_run_tail(args: argparse.Namespace, exc: BaseException) -> str:
 def _run_stopped(exc: BaseException) -> bool:
     """A run an actor placement stopped: a write failed (OSError) or an actor could not be
     restarted (``ActorFailed``)."""
-    from .runtime.supervisor import ActorFailed
+    from .errors import ActorFailed
 
     return isinstance(exc, OSError | ActorFailed)
 

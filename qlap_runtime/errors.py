@@ -16,6 +16,11 @@ class CliError(Exception):
         self.code = code
 
 
+class ActorFailed(RuntimeError):
+    """An actor died and could not be restarted: the run is stopped (the supervisor's and
+    the watchdog's verdict; the command line names the checkpoint kept)."""
+
+
 class WorldFailed(CliError):
     """A world's ``step`` raised: the run stops after the outputs of what was learned so far
     are written; the command line reports it in one line (exit status 1)."""

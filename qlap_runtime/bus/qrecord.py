@@ -16,7 +16,7 @@ orjson, and every learner converted it back into arrays: on the hosted step chai
 No pickle. The first byte (NUL) is never the first byte of a JSON message, so ``qstate``
 carries either; :func:`decode_record` validates everything and raises :class:`RecordError`
 (:func:`~.schema.decode` makes it a counted :class:`~.schema.MessageError`).
-:meth:`QRecord.to_qstate` gives the JSON message of the same step (the recorder, ``echo``).
+:func:`~.schema.qstate_of` gives the JSON message of the same step (the recorder, ``echo``).
 """
 
 from __future__ import annotations
@@ -110,20 +110,6 @@ class QRecord:
     def names(self) -> tuple[str, ...]:
         """The variable names in table order (empty for a rejected step)."""
         return _names_of(self.names_blob)
-
-    def to_qstate(self) -> Any:
-        """The JSON :class:`~.schema.QState` of the same step (what the perception actor's
-        ``QStateCodec.message`` writes: NaN values and unavailable qualitative values left
-        out)."""
-        from .schema import QState
-
-        if self.rejected:
-            return QState(self.step, {}, (), {}, rejected=self.rejected)
-        names = self.names
-        x = {k: v for k, v in zip(names, self.x.tolist(), strict=True) if v == v}
-        q = {k: v for k, v in zip(names, self.q.tolist(), strict=True) if v >= 0}
-        events = tuple((names[v], val, d) for v, val, d in self.events.tolist())
-        return QState(self.step, q, events, x, discontinuity=self.discontinuity)
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, QRecord) and other.payload == self.payload

@@ -53,6 +53,7 @@ from .schema import (
     decode,
     encode,
     json_schema,
+    qstate_of,
     schema_name,
 )
 
@@ -160,7 +161,7 @@ def as_json(msg: Any, payload: bytes) -> tuple[Any, bytes]:
     message (recordings and ``echo`` stay JSON, docs/decisions.md 98); others are as they
     came."""
     if isinstance(msg, QRecord):
-        msg = msg.to_qstate()
+        msg = qstate_of(msg)
         return msg, encode(msg)
     return msg, payload
 

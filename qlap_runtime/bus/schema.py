@@ -91,6 +91,19 @@ class QState:
     """Schema version of this message type."""
 
 
+def qstate_of(rec: QRecord) -> QState:
+    """The JSON :class:`QState` of a binary ``qstate`` record's step (what the perception
+    actor's ``QStateCodec.message`` writes: NaN values and unavailable qualitative values
+    left out): what recordings and ``echo`` show (docs/decisions.md 98)."""
+    if rec.rejected:
+        return QState(rec.step, {}, (), {}, rejected=rec.rejected)
+    names = rec.names
+    x = {k: v for k, v in zip(names, rec.x.tolist(), strict=True) if v == v}
+    q = {k: v for k, v in zip(names, rec.q.tolist(), strict=True) if v >= 0}
+    events = tuple((names[v], val, d) for v, val, d in rec.events.tolist())
+    return QState(rec.step, q, events, x, discontinuity=rec.discontinuity)
+
+
 @dataclass(frozen=True)
 class Motor:
     """``motor(t)``: the motor values the executor chose at step t (topic ``motor``)."""

@@ -26,23 +26,15 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from ..errors import ActorFailed
 from .snapshot import common_snapshot
+from .watchdog import DEFAULT_STALL_S, SIZE, Board, Watchdog
 
 log = logging.getLogger("qlap.supervisor")
 
 RESTARTABLE = frozenset({"perception", "contingency", "landmarks", "planner", "executor"})
 MAX_RESTARTS = 3
 """Restarts allowed per process in one run."""
-
-
-class ActorFailed(RuntimeError):
-    """An actor died and could not be restarted: the run is stopped."""
-
-
-def _default_stall() -> float:
-    from .watchdog import DEFAULT_STALL_S
-
-    return DEFAULT_STALL_S
 
 
 def group_name(group: tuple[str, ...]) -> str:
@@ -98,11 +90,10 @@ class Supervisor:
         self.attempts: dict[str, int] = dict.fromkeys(self.groups, 0)
         self.restarts: list[Restart] = []
         self._spawn = mp.get_context("spawn")
-        from .watchdog import SIZE, Board, Watchdog
         # The progress board in shared memory: each incarnation of an actor gets its slot.
         self.shared = {n: self._spawn.RawArray("d", SIZE) for n in self.names}
         self.board = Board(self.names, self.shared)
-        self.watchdog = Watchdog(self.board, ctx.stall_s or _default_stall())
+        self.watchdog = Watchdog(self.board, ctx.stall_s or DEFAULT_STALL_S)
 
     def group_of(self, actor: str) -> str:
         """The name of the process that runs ``actor``."""

@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from .supervisor import ActorFailed
+from ..errors import ActorFailed
 
 DEFAULT_STALL_S = 30.0
 """Seconds without progress after which a run is stalled (``RunContext.stall_s``)."""

@@ -30,7 +30,7 @@ from qlap_runtime.bus.qrecord import (
     payload_bytes,
     payload_text,
 )
-from qlap_runtime.bus.schema import MessageError, QState, decode, encode
+from qlap_runtime.bus.schema import MessageError, QState, decode, encode, qstate_of
 from qlap_runtime.qlap import ModelLearner, Params
 from qlap_runtime.qlap.perception import InvalidObservation, Perception
 from qlap_runtime.runtime.rules import qstate_rule
@@ -62,7 +62,7 @@ def test_records_of_real_percepts_round_trip_exactly_and_learn_as_the_sync_learn
     """Every step's record, decoded as a consumer decodes it, gives the percept's arrays bit
     for bit (NaN where a value is not known yet), its events and its discontinuity; a
     follower learning from the records perceives what the synchronous learner perceives;
-    ``to_qstate`` is the JSON message of the same percept."""
+    ``qstate_of`` is the JSON message of the same percept."""
     specs, rows, jumps = core_steps(120)
     jumps[40] = jumps[77] = True                        # a teleport's discontinuity
     params = Params()
@@ -80,7 +80,7 @@ def test_records_of_real_percepts_round_trip_exactly_and_learn_as_the_sync_learn
         assert got.step == t and got.discontinuity is jump and got.rejected == ""
         assert same(got.x, p.x) and same(got.q, p.q)
         assert [tuple(e) for e in got.events.tolist()] == [tuple(e) for e in p.events]
-        assert got.to_qstate() == codec.message(p)
+        assert qstate_of(got) == codec.message(p)
         seen_nan += int(np.isnan(got.x).sum())
         seen_event += len(p.events)
         mine = follower.observe_percept(codec.percept(got))
@@ -104,7 +104,7 @@ def test_a_rejected_observation_travels_as_its_reason():
     got = decode(KEY, rec.payload)
     assert got.rejected == str(exc.value) and "non-finite" in got.rejected
     assert got.n == 0 and len(got.x) == 0 and len(got.events) == 0
-    assert got.to_qstate() == QState(1, {}, (), {}, rejected=str(exc.value))
+    assert qstate_of(got) == QState(1, {}, (), {}, rejected=str(exc.value))
     assert qstate_rule(QStateCodec(per.table).names)(got) is None
     assert len(rec.payload) == HEAD.size + len(str(exc.value).encode())
 

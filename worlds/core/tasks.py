@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from worlds.base import Goal, Task, World
-from worlds.core import world as core
+from worlds.core.geometry import HAND_HALF, HAND_HIGH, HAND_LOW
 
 if TYPE_CHECKING:
     from worlds.core.world import CoreWorld
@@ -42,9 +42,9 @@ __all__ = [
 
 #: Footnote 2's "very close to the robot": the hand cannot get behind the block to push it
 #: forward when the block's near side is closer than this (the hand's far side at its nearest).
-NEAR_Y = core.HAND_LOW[1] + core.HAND_HALF + 0.5
+NEAR_Y = HAND_LOW[1] + HAND_HALF + 0.5
 #: "Extreme left": the hand cannot get left of the block to push it right (and vice versa).
-EXTREME_X = core.HAND_HIGH[0] - core.HAND_HALF - 0.5
+EXTREME_X = HAND_HIGH[0] - HAND_HALF - 0.5
 
 
 def _setup_trial(world: CoreWorld, rng: np.random.Generator) -> dict[str, float]:

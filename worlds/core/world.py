@@ -62,6 +62,8 @@ import numpy as np
 
 from worlds.base import VariableSpec, VarKind, World, with_resolution
 from worlds.core.floating import FloatingBalls
+from worlds.core.geometry import HAND_HALF, HAND_HALF_Z, HAND_HIGH, HAND_LOW, HAND_OFFSET
+from worlds.core.tasks import core_tasks
 
 __all__ = ["CoreWorld", "make_core"]
 
@@ -70,11 +72,6 @@ XML = Path(__file__).with_name("core.xml")
 TIMESTEP = 0.025
 SUBSTEPS = 2
 
-HAND_HALF = 1.5  # half the palm's width: the grasp distance of §7.1
-HAND_HALF_Z = 0.25
-HAND_OFFSET = (0.0, 0.5, 12.75)  # hand centre when the slide joints are at 0
-HAND_LOW = (-2.5, -2.0, 11.0)
-HAND_HIGH = (2.5, 3.0, 14.5)
 TABLE_TOP = 10.5
 #: The table's edges (reference frame): x_right, x_left, y_near, y_far. The left and far edges are
 #: within pushing reach (the reference's T_L and T_T landmarks near 0, Table 8.1, are the edges a
@@ -273,8 +270,6 @@ class CoreWorld(World):
         names = {v.name for v in variables}
         self.rare_variables = tuple(n for n in ("T", "bang", "m_BB") if n in names)
         self._build_model()
-
-        from worlds.core.tasks import core_tasks
 
         self.tasks = MappingProxyType(core_tasks(self))
         self.agent_options = MappingProxyType({})
