@@ -748,6 +748,8 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
     if summary["rejected_observations"]:
         print(f"rejected observations: {summary['rejected_observations']} "
               f"(first: {summary['rejected_examples'][0]})")
+    from .analysis.show import format_knowledge
+
     print(format_knowledge(agent.knowledge(), limit=25))
     _print_written(out)
     return 0
@@ -910,6 +912,8 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
         print(f"realtime {summary.get('hz')} Hz: late ticks {summary.get('late_ticks')}, "
               f"missed ticks {summary.get('missed_ticks')}, lateness p50 "
               f"{summary.get('lateness_p50_ms')} ms, p99 {summary.get('lateness_p99_ms')} ms")
+    from .analysis.show import format_knowledge
+
     print(format_knowledge(knowledge, limit=25))
     _print_written(out)
     return 0
@@ -970,6 +974,8 @@ def _cmd_show(args: argparse.Namespace) -> int:
     except AnalysisError as exc:
         print(f"qlap show: {exc}", file=sys.stderr)
         return 2
+    from .analysis.show import format_knowledge
+
     print(format_knowledge(knowledge, show_all=args.all))
     return 0
 
@@ -1104,55 +1110,6 @@ def _cmd_plot(args: argparse.Namespace) -> int:
             print(f"qlap plot: {exc}", file=sys.stderr)
             status = 2
     return status
-
-
-def pretty(text: str) -> str:
-    """The reference's notation: h_x.dot -> ḣ_x, inf -> ∞."""
-    import re
-
-    text = re.sub(r"\b(\w)(\w*)\.dot\b", lambda m: m.group(1) + "\u0307" + m.group(2), text)
-    return text.replace("+inf", "+∞").replace("-inf", "−∞")
-
-
-def format_knowledge(k: dict, show_all: bool = False, limit: int | None = None) -> str:
-    """Knowledge grouped by action (Tables 8.2–8.6), landmarks first."""
-    lines = [f"after {k['step'] + 1:,} steps (t = {k['step']}), window k = {k['k']}", "",
-             "landmarks learned (beside the initial ones of Table 3.1):"]
-    n_lines = len(lines)
-    for name, lms in k["landmarks"].items():
-        learned = [m["label"] for m in lms if m["source"] != "initial"]
-        if learned:
-            lines.append(f"  {pretty(name):10s} {', '.join(learned)}")
-    if len(lines) == n_lines:
-        lines.append("  none yet")
-    dbns = {d["id"]: d for d in k["dbns"]}
-    actions = sorted(k.get("actions", []), key=lambda a: (-a["reliability"], a["label"]))
-    lines += ["", f"actions with plans ({sum(1 for a in actions if a['plans'])}):"]
-    shown = 0
-    for a in actions:
-        if not a["plans"]:
-            continue
-        if limit is not None and shown >= limit:
-            lines.append("  …")
-            break
-        shown += 1
-        flag = "  (sufficiently reliable)" if a["sufficiently_reliable"] else ""
-        lines.append(f"  {pretty(a['label'])}  rel {a['reliability']:.2f}  "
-                     f"calls {a['calls']}{flag}")
-        for p in a["plans"]:
-            d = dbns.get(p["dbn"], {})
-            brel = "⊥" if d.get("brel") is None else f"{d['brel']:.2f}"
-            co = "{" + ", ".join(pretty(v) for v in p["context_o"]) + "}"
-            lines.append(f"      {pretty(p['dbn_label'])}  brel {brel}  "
-                         f"H {d.get('entropy', float('nan')):.2f}  C_o {co}  "
-                         f"rel(o) {p['rel_o']:.2f}")
-    if show_all:
-        lines += ["", "DBNs that are not plans:"]
-        for d in k["dbns"]:
-            if not d["plan"]:
-                brel = "⊥" if d["brel"] is None else f"{d['brel']:.2f}"
-                lines.append(f"  {pretty(d['label'])}  brel {brel}  H {d['entropy']:.2f}")
-    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -282,14 +281,6 @@ class Cadence:
             self.rate.pop(0)
         (t0, s0), (t1, s1) = self.rate[0], self.rate[-1]
         return (s1 - s0) / (t1 - t0) if t1 > t0 else 0.0
-
-
-def all_messages(agent: Any, world: Any, **status: Any) -> Iterable[tuple[str, Any]]:
-    """Every snapshot message as (topic, message), e.g. to publish all at once on demand."""
-    yield "knowledge", knowledge_msg(agent)
-    yield "calllist", call_list_msg(agent)
-    yield "world", world_msg(agent, world)
-    yield "status", status_msg(agent, **status)
 
 
 def goal_key(agent: Any, var: str, value: Any) -> tuple[int, int]:

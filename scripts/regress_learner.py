@@ -28,6 +28,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 from qlap_runtime.qlap import ModelLearner, Params, VariableTable  # noqa: E402
 from qlap_runtime.qlap.babble import Babbler  # noqa: E402
+from qlap_runtime.qlap.checkpoint import atomic_write_bytes  # noqa: E402
 from qlap_runtime.qlap.variables import Kind  # noqa: E402
 
 
@@ -93,7 +94,7 @@ def main() -> int:
             prof.disable()
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         text = json.dumps(learner.knowledge(), sort_keys=True)
-        (args.out / f"{name}.json").write_text(text)
+        atomic_write_bytes(args.out / f"{name}.json", text.encode())
         status = ""
         if args.compare is not None:
             ref = (args.compare / f"{name}.json").read_text()

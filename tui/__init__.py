@@ -3,20 +3,16 @@
 - :class:`QlapApp` — the UI: subscribes to a run's telemetry, publishes ``control``.
 - :class:`LocalDriver` — the synchronous agent in a thread on an embedded Zenoh session,
   publishing the telemetry the UI shows (``qlap run`` in a terminal).
-- :func:`run_local` — both together; :func:`attach` — the UI on a remote run
-  (``qlap tui --connect``).
+- :func:`run_local` — both together; ``QlapApp(connect=..., run_id=...)`` — the UI on a
+  remote run (``qlap tui --connect``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
-
 from .app import BusFeed, QlapApp
 from .driver import DriverProcess, LocalDriver
 
-__all__ = ["BusFeed", "DriverProcess", "LocalDriver", "QlapApp", "attach", "run_local",
-           "run_process"]
+__all__ = ["BusFeed", "DriverProcess", "LocalDriver", "QlapApp", "run_local", "run_process"]
 
 
 def run_local(driver: LocalDriver) -> LocalDriver:
@@ -46,8 +42,3 @@ def run_process(proc: DriverProcess) -> DriverProcess:
                   flush=True)
         proc.stop()
     return proc
-
-
-def attach(connect: Sequence[str] | str, run_id: str | None = None, **client: Any) -> None:
-    """Run the UI on a remote run through a router (``client_config(connect, **client)``)."""
-    QlapApp(connect=connect, run_id=run_id, **client).run()

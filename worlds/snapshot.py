@@ -11,6 +11,7 @@ otherwise). The PNG is written with the standard library (zlib), no imaging pack
 from __future__ import annotations
 
 import argparse
+import os
 import struct
 import sys
 import zlib
@@ -39,7 +40,13 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
     header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header)
     png += chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b"")
-    Path(path).write_bytes(png)
+    path = Path(path)                  # whole or not at all: a temporary file, then a rename
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_bytes(png)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def render_png(

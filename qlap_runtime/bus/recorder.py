@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -300,9 +301,14 @@ async def record(source: Source, run_id: str | None, out_path: Path | str,
     before = counter.total
     if info is not None and run_id is not None and "run_id" not in info:
         info = {**info, "run_id": run_id}
+    # Streamed to NAME.part, renamed to NAME once the file is whole (its footer written, even
+    # when the recording ends with an error): NAME is never a torn recording.
+    part = Path(out_path).with_name(Path(out_path).name + ".part")
+    whole = False
     with ExitStack() as stack:
+        stack.callback(lambda: whole and os.replace(part, out_path))
         session = _session(source, stack)
-        f = stack.enter_context(open(out_path, "wb"))  # noqa: ASYNC230 - a local file, streamed
+        f = stack.enter_context(open(part, "wb"))  # noqa: ASYNC230 - a local file, streamed
         sink = McapSink(f, info=info, scene_hz=scene_hz)
         try:
             sub = stack.enter_context(
@@ -325,6 +331,7 @@ async def record(source: Source, run_id: str | None, out_path: Path | str,
             write(sub.receive_nowait())
         finally:
             sink.finish()
+            whole = True
     summary.rejected = counter.total - before
     summary.scenes = sink.scenes
     summary.runs = tuple(sink.runs)

@@ -68,14 +68,3 @@ def parse_groups(spec: str | Layout) -> Layout:
 def _show(spec: str | Layout) -> str:
     return spec if isinstance(spec, str) else ",".join("+".join(g) for g in spec)
 
-
-def group_name(group: tuple[str, ...]) -> str:
-    """A group's (and its process's) name: its actors joined by ``+`` (``contingency+landmarks``;
-    a group of one is named after its actor)."""
-    return "+".join(group)
-
-
-def restartable(group: tuple[str, ...]) -> bool:
-    """A group's process can be restarted when every actor in it can: all but the world, whose
-    physics state is not snapshotted."""
-    return "world" not in group

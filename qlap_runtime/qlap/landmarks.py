@@ -355,12 +355,3 @@ class EventBinner:
                 return BinLandmark(float(d[i]), self.lo + i * self.bin_size,
                                    self.lo + (i + 1) * self.bin_size, i, name)
         return None
-
-
-def event_bin_landmark(all_values: np.ndarray, event_values_rows: np.ndarray, bin_size: float,
-                       theta_e: float, min_points: int) -> BinLandmark | None:
-    """Algorithm 5 for one event and one variable; see :class:`EventBinner`."""
-    if bin_size <= 0 or len(all_values) == 0:
-        return None
-    return EventBinner(np.asarray(all_values, dtype=float), bin_size).best(
-        np.asarray(event_values_rows, dtype=np.int64), theta_e, min_points)

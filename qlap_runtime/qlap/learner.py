@@ -101,10 +101,6 @@ class ModelLearner:
         """
         return self._observe(step, self.perception.vector(obs), discontinuity)
 
-    def observe_vector(self, step: int, x: np.ndarray, discontinuity: bool = False) -> Percept:
-        """:meth:`observe` with the real values already ordered by variable index."""
-        return self._observe(step, np.array(x, dtype=float), discontinuity)
-
     def break_history(self) -> None:
         """A discontinuity in the world: no derivative, event, soon-window or activation spans
         it. The perception forgets its previous values; the antecedent occurrences and DBN

@@ -529,19 +529,11 @@ def dbn_rel_state(dbn: DBN, sizes, prior: float) -> Callable[[PlanStateSpace], n
     return rel
 
 
-def creates_cycle(edges: set[tuple[tuple[int, int], tuple[int, int]]],
-                  new: tuple[tuple[int, int], tuple[int, int]]) -> bool:
-    """Would adding the edge consequent → antecedent close a cycle in the action graph (§6.2.2)?"""
-    adj: dict[tuple[int, int], list[tuple[int, int]]] = {}
-    for a, b in edges:
-        adj.setdefault(a, []).append(b)
-    return closes_cycle(adj, new)
-
-
 def closes_cycle(adj: Mapping[tuple[int, int], list[tuple[int, int]]],
                  new: tuple[tuple[int, int], tuple[int, int]]) -> bool:
-    """:func:`creates_cycle` with the edges as adjacency lists (node -> successors), for a
-    caller that tests many edges on one graph."""
+    """Would adding the edge ``new`` = (consequent, antecedent) close a cycle in the action
+    graph (§6.2.2 criterion 2)? ``adj``: the graph's edges as adjacency lists (node ->
+    successors), for a caller that tests many edges on one graph."""
     src, dst = new
     if src == dst:
         return True

@@ -9,7 +9,7 @@ import pytest
 from qlap_runtime.qlap import Params, VariableTable
 from qlap_runtime.qlap.dbn import CHANGE, DBN
 from qlap_runtime.qlap.mdp import NOT_APPLICABLE, sarsa_reward
-from qlap_runtime.qlap.planner import Plan, PlanGroups, dbn_rel_state
+from qlap_runtime.qlap.planner import Plan, PlanGroups, closes_cycle, dbn_rel_state
 from qlap_runtime.qlap.variables import Event
 from tests.qlap.toyworld import SPECS
 
@@ -301,3 +301,15 @@ def test_a_rebuild_of_the_same_structure_leaves_the_model_to_the_next_refresh() 
             plan.refresh(rel, dbn_rel_state(dbn, sizes, 1.0), dyna=True)
         assert lazy.model.p1.tobytes() == eager.model.p1.tobytes()
         assert lazy.q.tobytes() == eager.q.tobytes()
+
+
+def test_an_edge_closes_a_cycle_when_its_antecedent_reaches_its_consequent():
+    """§6.2.2 criterion 2: with plans a → b → c in the action graph (consequent → antecedent),
+    a plan whose edge is c → a closes a cycle; a → c, or an edge apart, does not; a DBN whose
+    antecedent is its own consequent does."""
+    a, b, c, d = (0, 1), (1, 1), (2, 1), (3, 1)
+    adj = {a: [b], b: [c]}
+    assert closes_cycle(adj, (c, a))
+    assert not closes_cycle(adj, (a, c))
+    assert not closes_cycle(adj, (d, a))
+    assert closes_cycle(adj, (d, d))

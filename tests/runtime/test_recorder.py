@@ -42,9 +42,12 @@ async def test_recorder_in_process_writes_what_was_published(embedded, run_id, t
         embedded.put(keys.key(run_id, "sense"), b"garbage")  # counted, not recorded
         embedded.put(keys.key("other-run", "sense"), b'{"step":0,"values":{},"version":1}')
         await trio.sleep(0.2)
+        # streamed to run.mcap.part; run.mcap appears whole, once the footer is written
+        assert not out.exists() and (tmp_path / "run.mcap.part").is_file()
         stop.set()
     for p in pubs.values():
         p.close()
+    assert not (tmp_path / "run.mcap.part").exists()
     summary = summary_box[0]
     assert summary.messages == len(msgs)
     assert summary.rejected == 1
