@@ -212,6 +212,9 @@ def build_parser() -> argparse.ArgumentParser:
     curve.add_argument("--every", type=positive_int, default=None, metavar="N",
                        help="evaluate only the checkpoints whose step is a multiple of N, "
                             "plus each run's last (default: every checkpoint)")
+    curve.add_argument("--at", type=positive_int, nargs="+", default=(), metavar="STEP",
+                       help="with --every: these steps' checkpoints too (e.g. --at 20000 "
+                            "230000 240000: the end of babbling and the last three)")
 
     report = sub.add_parser(
         "report", help="what runs know, beside the reference's figures (ch. 8)",
@@ -1089,7 +1092,7 @@ def _cmd_analysis(args: argparse.Namespace) -> int:
         if args.command == "curve":
             return main_curve(args.runs, args.task, args.trials, args.jobs, args.seed,
                               args.out, args.world, echo=lambda s: print(s, flush=True),
-                              every=args.every)
+                              every=args.every, at=args.at)
         print(main_report(args.runs, as_json=args.json))
     except (AnalysisError, OutputError) as exc:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)

@@ -573,8 +573,8 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
                                                                          cfg.seeds[0]))),
         "```",
         "",
-        "then `qlap curve RUN_DIRS --task T --trials N --every E --out RUNS/curve-T` and "
-        "`qlap report --json RUN_DIRS` (docs/analysis.md).",
+        "then `qlap curve RUN_DIRS --task T --trials N --every E [--at STEP ...] "
+        "--out RUNS/curve-T` and `qlap report --json RUN_DIRS` (docs/analysis.md).",
         "",
     ]
     if not protocol_ok:

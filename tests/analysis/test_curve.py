@@ -191,3 +191,14 @@ def test_cli_every_must_be_positive(runs):
                         "--task", "move_block", "--every", "0"], capture_output=True,
                        text=True, timeout=120)
     assert r.returncode == 2 and "--every" in r.stderr and "positive" in r.stderr
+
+
+def test_cli_at_adds_steps_to_every(runs, tmp_path):
+    """`--at` reaches main_curve: the page's command (docs/results.md) reproduces its curves."""
+    s1 = shutil.copytree(runs[0], tmp_path / "s1")
+    r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "curve", str(s1),
+                        "--task", "move_block", "--trials", "2", "--jobs", "2",
+                        "--every", "3000", "--at", "1000"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert [r.step for r in read_rows(s1 / "curve.csv")] == [None, 1000, 3000]
