@@ -118,14 +118,19 @@ class RayBackend:
         self.slots = max(1, min(jobs, cpus) if jobs and address else cpus)
         self.remote = {k: ray.remote(num_cpus=1, max_retries=0)(f)
                        for k, f in JOB_FUNCTIONS.items()}
+        self.pending: set[Any] = set()
+        """The submitted tasks not yet returned (cancelled by :meth:`close` on an interrupt)."""
 
     def submit(self, kind: str, payload: str) -> Any:
-        return self.remote[kind].remote(payload)
+        ref = self.remote[kind].remote(payload)
+        self.pending.add(ref)
+        return ref
 
     def wait(self, handles: list[Any], timeout: float) -> Done:
         ready, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
         out: Done = []
         for ref in ready:
+            self.pending.discard(ref)
             try:
                 out.append((ref, self.ray.get(ref)))
             except Exception as exc:  # a job's error, raised by Ray on get
@@ -133,6 +138,12 @@ class RayBackend:
         return out
 
     def close(self, cancel: bool = False) -> None:
+        """``cancel`` (an interrupted sweep): the tasks still running are cancelled — on a
+        cluster they would go on writing run directories, as a local pool's would not."""
+        if cancel:
+            for ref in self.pending:
+                self.ray.cancel(ref, force=True)
+            self.pending.clear()
         if self.owned:
             self.ray.shutdown()
 
