@@ -26,6 +26,7 @@ from typing import Any
 
 from ..telemetry import pretty
 from . import reference_values as ref
+from .markdown import num
 from .runs import AnalysisError, load_knowledge, run_labels
 from .timeline import (
     KnowledgePoint,
@@ -186,10 +187,6 @@ def resolutions_of(path: Path) -> dict[str, float]:
     return {}
 
 
-def _num(x: float | None, fmt: str = "{:g}") -> str:
-    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else fmt.format(x)
-
-
 def _mean(values: Sequence[float | None]) -> float | None:
     xs = [float(v) for v in values if v is not None]
     return sum(xs) / len(xs) if xs else None
@@ -209,27 +206,27 @@ def format_report(figures: Sequence[dict[str, Any]], labels: Sequence[str]) -> s
 
     ks = [f["k"] for f in figures]
     row("window k (App. C)", f"≈ {R['k']['value']} (§7.10.1)", T["k"],
-        [_num(f["k"]) + (" (not learned)" if f["k_learned"] is False else "")
+        [num(f["k"]) + (" (not learned)" if f["k_learned"] is False else "")
          for f in figures],
-        _num(_mean(ks), "{:.1f}"))
+        num(_mean(ks), "{:.1f}"))
     for key, name, reference in (
             ("change_dbns", "change DBNs (Fig. 7.9)", f"≈ {ref.CHANGE_DBNS}, bounded"),
             ("magnitude_dbns", "magnitude DBNs", "—")):
         vals = [f[key] for f in figures]
         row(name, reference, T.get(key, "—"), [str(v) for v in vals],
-            _num(_mean(vals), "{:.1f}"))
+            num(_mean(vals), "{:.1f}"))
     med = [f["landmarks_median"] for f in figures]
     row("landmarks per variable, median", f"{R['landmarks_median']:g} (Table 8.1)",
-        T["landmarks_median"], [_num(m) for m in med], _num(_mean(med), "{:.1f}"))
+        T["landmarks_median"], [num(m) for m in med], num(_mean(med), "{:.1f}"))
     top = [f["landmarks_max"] for f in figures]
     row("landmarks per variable, max", f"{R['landmarks_max']} (Table 8.1)",
         T["landmarks_max"], [f"{f['landmarks_max']} ({pretty(f['landmarks_max_variable'])})"
          if f["landmarks_max"] is not None else "—" for f in figures],
-        _num(_mean(top), "{:.1f}"))
+        num(_mean(top), "{:.1f}"))
     nar = [f["narrow_count"] for f in figures]
     row("values narrower than resolution / 0.1 %", "none", T["narrow_count"],
         [str(n) for n in nar],
-        _num(_mean(nar), "{:.1f}"))
+        num(_mean(nar), "{:.1f}"))
     lo, hi = ref.FRICTION_BAND
     (m0, m1), (p0, p1) = ref.U_X_LANDMARKS
     for side, band, reference in (("plus", f"[{lo:g}, {hi:g}]", f"[{p0}, {p1}]"),
@@ -249,10 +246,10 @@ def format_report(figures: Sequence[dict[str, Any]], labels: Sequence[str]) -> s
         planned = sum(1 for a in acts if a["plan"])
         row(f"rel {pretty(key)} ({ra.source})", f"{ra.rel:.2f}",
             f"≥ {ra.target:.2f}, a plan", cells,
-            f"{_num(_mean([a['rel'] for a in acts]), '{:.2f}')}, plan {planned}/{len(acts)}")
+            f"{num(_mean([a['rel'] for a in acts]), '{:.2f}')}, plan {planned}/{len(acts)}")
     # knowledge.json's step is the index t of the last step (0-based): t + 1 steps were done,
     # the N of the step-N checkpoint and of the UI's count
-    steps = [_num(None if f["step"] is None else f["step"] + 1, "{:,}") for f in figures]
+    steps = [num(None if f["step"] is None else f["step"] + 1, "{:,}") for f in figures]
     lines = [f"knowledge after {', '.join(steps)} steps", "", _table(header, rows)]
 
     variables = list(dict.fromkeys([*(v for v in ref.LANDMARKS_TABLE_8_1
@@ -263,8 +260,8 @@ def format_report(figures: Sequence[dict[str, Any]], labels: Sequence[str]) -> s
         counts = [f["landmarks"].get(v) for f in figures]
         refc = ref.LANDMARKS_TABLE_8_1.get(v)
         per_var.append([pretty(v), "—" if refc is None else str(refc),
-                        *[_num(c) for c in counts]]
-                       + ([_num(_mean(counts), "{:.1f}")] if many else []))
+                        *[num(c) for c in counts]]
+                       + ([num(_mean(counts), "{:.1f}")] if many else []))
     lines += ["", "landmarks per variable (initial ones included, as Table 8.1):",
               _table(["variable", "Table 8.1", *labels] + (["mean"] if many else []), per_var)]
     for f, label in zip(figures, labels, strict=True):

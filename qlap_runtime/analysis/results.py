@@ -39,6 +39,7 @@ from .curve import (
     read_rows,
     select_every,
 )
+from .markdown import pm, table
 from .report import report_data
 from .runs import AnalysisError, find_checkpoints, read_summary, run_labels, run_world
 from .timeline import (
@@ -272,22 +273,6 @@ def clearly_above(end: CurvePoint | None, base: CurveRow | None, n_runs: int,
     return target, measured, bool(margin > z * se and above == n_runs)
 
 
-def _pm(mean: float | None, se: float | None, fmt: str = "{:.2f}") -> str:
-    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
-        return "—"
-    text = fmt.format(mean)
-    if se is not None and not math.isnan(se):
-        text += " ± " + fmt.format(se)
-    return text
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    def line(cells: Sequence[str]) -> str:
-        return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
-
-    return "\n".join([line(header), line(["---"] * len(header)), *map(line, rows)])
-
-
 def _task_section(res: TaskResult, image: str | None,
                   targets: ref.WorldTargets = ref.CORE_TARGETS) -> list[str]:
     pts = res.points
@@ -305,15 +290,15 @@ def _task_section(res: TaskResult, image: str | None,
               *res.labels]
     rows = []
     for name, p in chosen:
-        rows.append([name, _pm(p.mean_reward, p.stderr), f"{p.success_rate:.0%}",
+        rows.append([name, pm(p.mean_reward, p.stderr), f"{p.success_rate:.0%}",
                      str(len(p.runs)),
                      *(f"{p.runs[r]:.2f}" if r in p.runs else "—" for r in res.labels)])
     b = res.baseline
     if b is not None:
         rows.append(["random policy", f"{b.mean_reward:.2f} ± {b.stderr:.2f} (over trials)",
                      f"{b.success_rate:.0%}", "—", *("" for _ in res.labels)])
-    lines += [_table(header, rows), ""]
-    lines += [_table(["target", "measured", "met"],
+    lines += [table(header, rows), ""]
+    lines += [table(["target", "measured", "met"],
                      [[t, m, _mark(ok)] for t, m, ok in task_targets(res, targets)]), ""]
     if image:
         lines += [f"![{res.task}: mean reward against steps]({image})", ""]
@@ -349,11 +334,11 @@ def _knowledge_rows(data: Mapping[str, Any],
     mk = mean_of(ks)
     if T.k_range is None:
         add("window k (App. C)", f"≈ {R['k']['value']} (§7.10.1)", "—",
-            [str(k) for k in ks], _pm(mk, None, "{:.1f}"), [None] * n, None)
+            [str(k) for k in ks], pm(mk, None, "{:.1f}"), [None] * n, None)
     else:
         k0, k1 = T.k_range
         add("window k (App. C)", f"≈ {R['k']['value']} (§7.10.1)", f"{k0} to {k1}",
-            [str(k) for k in ks], _pm(mk, None, "{:.1f}"),
+            [str(k) for k in ks], pm(mk, None, "{:.1f}"),
             [None if k is None else k0 <= k <= k1 for k in ks],
             None if mk is None else k0 <= mk <= k1)
     limit = T.change_dbn_limit
@@ -361,7 +346,7 @@ def _knowledge_rows(data: Mapping[str, Any],
     mch = mean_of(ch)
     add("change DBNs at the end" + (" (Fig. 7.9)" if T.chapter_8 else ""),
         f"≈ {ref.CHANGE_DBNS}" if T.chapter_8 else "—",
-        f"≤ {limit}", [str(c) for c in ch], _pm(mch, None, "{:.1f}"),
+        f"≤ {limit}", [str(c) for c in ch], pm(mch, None, "{:.1f}"),
         [c <= limit for c in ch], None if mch is None else mch <= limit)
     gm = data["growth_mean"]
     add(f"change DBNs not growing after {T.growth_after // 1000}k",
@@ -371,14 +356,14 @@ def _knowledge_rows(data: Mapping[str, Any],
         [growth[r]["flat"] for r in labels], gm["flat"])
     mag = [runs[r]["magnitude_dbns"] for r in labels]
     add("magnitude DBNs at the end", "—", "—", [str(m) for m in mag],
-        _pm(mean_of(mag), None, "{:.1f}"), [None] * n, None)
+        pm(mean_of(mag), None, "{:.1f}"), [None] * n, None)
     med = [runs[r]["landmarks_median"] for r in labels]
     mmed = mean_of(med)
     gmed = T.landmarks_median
     add("landmarks per variable, median",
         f"{R['landmarks_median']:g} (Table 8.1)" if T.chapter_8 else "—",
         "—" if gmed is None else f"≤ {gmed:g}",
-        ["—" if m is None else f"{m:g}" for m in med], _pm(mmed, None, "{:.1f}"),
+        ["—" if m is None else f"{m:g}" for m in med], pm(mmed, None, "{:.1f}"),
         [None if m is None or gmed is None else m <= gmed for m in med],
         None if mmed is None or gmed is None else mmed <= gmed)
     top = [runs[r]["landmarks_max"] for r in labels]
@@ -388,13 +373,13 @@ def _knowledge_rows(data: Mapping[str, Any],
         f"{R['landmarks_max']} (Table 8.1)" if T.chapter_8 else "—",
         "—" if gmax is None else f"≤ {gmax}",
         ["—" if t is None else f"{t} ({pretty(runs[r]['landmarks_max_variable'])})"
-         for t, r in zip(top, labels, strict=True)], _pm(mtop, None, "{:.1f}"),
+         for t, r in zip(top, labels, strict=True)], pm(mtop, None, "{:.1f}"),
         [None if t is None or gmax is None else t <= gmax for t in top],
         None if mtop is None or gmax is None else mtop <= gmax)
     nar = [runs[r]["narrow_count"] for r in labels]
     mnar = mean_of(nar)
     add("values narrower than the resolution", "none", "0", [str(x) for x in nar],
-        _pm(mnar, None, "{:.1f}"), [x == 0 for x in nar], None if mnar is None else mnar == 0)
+        pm(mnar, None, "{:.1f}"), [x == 0 for x in nar], None if mnar is None else mnar == 0)
     if not T.chapter_8:
         return rows
     lo, hi = ref.FRICTION_BAND
@@ -421,7 +406,7 @@ def _knowledge_rows(data: Mapping[str, Any],
             f"≥ {ra.target:.2f}" + (" with a plan" if need_plan else ""),
             ["no such action" if a["rel"] is None else
              f"{a['rel']:.2f}" + (" (plan)" if a["plan"] else " (no plan)") for a in acts],
-            _pm(mrel, None) + f", plan {sum(a['plan'] for a in acts)}/{n}", per, met)
+            pm(mrel, None) + f", plan {sum(a['plan'] for a in acts)}/{n}", per, met)
     return rows
 
 
@@ -440,7 +425,7 @@ def _landmark_rows(data: Mapping[str, Any]) -> list[str]:
         rows.append([pretty(v), *("—" if c is None else str(c) for c in counts),
                      str(max(have)) if have else "—"])
     out = ["Landmarks per variable (initial ones included):", "",
-           _table(["variable", *labels, "max"], rows), ""]
+           table(["variable", *labels, "max"], rows), ""]
     narrow = [[r, pretty(x["variable"]), x["value"], f"{x['width']:.4g}", f"{x['limit']:.4g}",
                f"{x['width'] / x['limit']:.1%}"]
               for r in labels for x in runs[r]["narrow"] if x["limit"] > 0]
@@ -448,7 +433,7 @@ def _landmark_rows(data: Mapping[str, Any]) -> list[str]:
         out += ["Values narrower than the resolution (the resolution of each seed's final "
                 "checkpoint: the world's declared one, else for a magnitude half its §4.4.2 "
                 "bin, measured on the history and fixed at the end of babbling):", "",
-                _table(["run", "variable", "value", "width", "resolution", "width / resolution"],
+                table(["run", "variable", "value", "width", "resolution", "width / resolution"],
                        narrow), ""]
     return out
 
@@ -598,7 +583,7 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
     judged = sum(row[-1] != _mark(None) for row in glance)
     L += ["## Targets at a glance", "",
           f"{met} of {judged} judged targets met (means over the seeds; details below).", "",
-          _table(["what", "target", "measured", "met"], glance), ""]
+          table(["what", "target", "measured", "met"], glance), ""]
 
     L += ["## Tasks", "",
           f"Mean reward per trial ({T.reward}) "
@@ -625,7 +610,7 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
           "as in Table 8.1; a value is narrower than the resolution when a landmark range or "
           "the open interval between two consecutive landmarks is narrower than the "
           "variable's resolution.", "",
-          _table(["measure", "reference", "target", *labels, "mean", "seeds", "met"],
+          table(["measure", "reference", "target", *labels, "mean", "seeds", "met"],
                  krows), ""]
     if not T.chapter_8:
         L += _landmark_rows(data)
@@ -648,10 +633,10 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
         shown = [s for s in steps
                  if s == T.rise_from or s % T.timeline_every == 0 or s == steps[-1]]
         rows = [[f"{s:,}", str(series['change_dbns'][s].n),
-                 *(_pm(series[f][s].mean, series[f][s].stderr, "{:.1f}")
+                 *(pm(series[f][s].mean, series[f][s].stderr, "{:.1f}")
                    for f in ("change_dbns", "magnitude_dbns", "plans", "landmarks"))]
                 for s in shown]
-        L += [_table(["step", "seeds", "change DBNs", "magnitude DBNs", "plans", "landmarks"],
+        L += [table(["step", "seeds", "change DBNs", "magnitude DBNs", "plans", "landmarks"],
                      rows), ""]
     L += [f"Verdict, **change DBNs ≤ {T.change_dbn_limit} and not growing after "
           f"{T.growth_after:,} steps**: bounded means at most {T.change_dbn_limit} change "
@@ -661,7 +646,7 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
           "count (a fitted line, so that one checkpoint just before or after a wave of "
           "deletions does not decide alone). The mean is judged on the steps every seed has.",
           ""]
-    L += [_table(["run", "verdict"],
+    L += [table(["run", "verdict"],
                  [[label, describe_verdict(data["growth"][label])] for label in labels]
                  + ([["mean", describe_verdict(data["growth_mean"])]] if n > 1 else [])), ""]
 
@@ -673,7 +658,7 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
              "core run (a benchmark, not a test)." if T.steps_per_s is not None else
              f"No target for this world (the {ref.SYNC_STEPS_PER_S:,.0f} steps/s target is "
              "set for a 250,000-step core run)."), "",
-          _table(["run", "steps/s", "wall time (s)", "placement"],
+          table(["run", "steps/s", "wall time (s)", "placement"],
                  [*srows, ["mean", "—" if smean is None else f"{smean:,.1f}", "", ""]]),
           "",
           f"Mean {'—' if smean is None else f'{smean:,.1f}'} steps/s"

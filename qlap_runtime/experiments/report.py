@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.curve import RANDOM_RUN
+from ..analysis.markdown import num, pm, table
 from ..analysis.runs import read_summary
 from ..qlap.checkpoint import atomic_write_bytes
 from . import stats
@@ -133,25 +134,13 @@ def collect(sweep: Sweep) -> Results:
     return res
 
 
+F3 = "{:.3f}"
+"""The reports' figures: three decimals."""
+
+
 # ---------------------------------------------------------------------------------------------
 # Writing
 # ---------------------------------------------------------------------------------------------
-def _num(x: float | None, fmt: str = "{:.3f}") -> str:
-    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else fmt.format(x)
-
-
-def _pm(mean: float, se: float) -> str:
-    if math.isnan(mean):
-        return "—"
-    return f"{mean:.3f}" + ("" if math.isnan(se) else f" ± {se:.3f}")
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(" --- " for _ in header) + "|"]
-    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
 def _csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -254,7 +243,7 @@ def _page(exp: Experiment, sweep: Sweep, res: Results, command: str, spelled: st
               "Regenerate with exactly:", "", "```sh", command, "```", "",
               "which is, with every option spelled out:", "", "```sh", spelled, "```", ""]
     proto = dict(exp.reference_protocol)
-    lines += [_table(["setting", "here", "reference"], [
+    lines += [table(["setting", "here", "reference"], [
         ["agents per condition", str(exp.agents), proto.get("agents", "20 (§7.3)")],
         ["steps of learning", f"{exp.steps:,}", proto.get("steps", "250,000 (§7.2)")],
         ["trials per evaluation", str(exp.trials), "100 (§7.2.1)"],
@@ -272,7 +261,7 @@ def _page(exp: Experiment, sweep: Sweep, res: Results, command: str, spelled: st
                   f"({result.evals_reused} reused) in {result.wall_s:.0f} s"
                   + (f"; {sps:,.0f} agent steps/s per worker" if sps else "") + ".", ""]
 
-    conds = _table(["condition", "world", "learner", "runs"], [
+    conds = table(["condition", "world", "learner", "runs"], [
         [label, ar.arm.world_spec(exp.steps), ar.arm.condition.description or
          ar.arm.condition.kind, str(len(ar.runs))] for label, ar in sweep.arms.items()])
     lines += ["## Conditions", "", conds, ""]
@@ -287,19 +276,19 @@ def _page(exp: Experiment, sweep: Sweep, res: Results, command: str, spelled: st
             bar = stats.mean_se(stats.window_means(series, after).values())
             end = _final(series)
             rnd = res.random.get((ar.eval_world, task))
-            rows.append([label, _pm(bar[0], bar[1]), str(bar[2]), _pm(end[0], end[1]),
-                         _num(rnd)])
-        lines += [_table(["condition", f"mean after {after:,} ± s.e." if after else
+            rows.append([label, pm(bar[0], bar[1], F3), str(bar[2]), pm(end[0], end[1], F3),
+                         num(rnd, F3)])
+        lines += [table(["condition", f"mean after {after:,} ± s.e." if after else
                           "mean over all ± s.e.", "agents", "at the last checkpoint",
                           "random policy"], rows), ""]
         tests = [t for t in res.tests if t.task == task]
         if tests:
-            lines += [_table(["test", "reference", "measured", "means (arm, versus)"], [
+            lines += [table(["test", "reference", "measured", "means (arm, versus)"], [
                 [f"{t.arm} vs {t.versus}",
                  f"{t.reference} ({t.source})" if t.source else t.reference,
                  (t.measured.caption() + f" (df {t.measured.df1:g}, {t.measured.df2:g})")
                  if t.measured else "— (too few agents or no variance)",
-                 f"{_num(t.means[0])}, {_num(t.means[1])}"] for t in tests]), ""]
+                 f"{num(t.means[0], F3)}, {num(t.means[1], F3)}"] for t in tests]), ""]
         effects = [(label, res.time_effects.get((label, task))) for label in sweep.arms]
         if any(e is not None for _, e in effects):
             lines += ["Change over the checkpoints within each condition (repeated-measures "
@@ -318,9 +307,9 @@ def _page(exp: Experiment, sweep: Sweep, res: Results, command: str, spelled: st
         for label, per in res.dbns.items():
             pts = stats.curve(per)
             peak = max((p.mean for p in pts), default=math.nan)
-            rows.append([label, _pm(pts[-1].mean, pts[-1].stderr) if pts else "—",
-                         _num(peak, "{:.1f}"), str(len(per))])
-        lines += [_table(["condition", "change DBNs at the end ± s.e.", "peak of the mean",
+            rows.append([label, pm(pts[-1].mean, pts[-1].stderr, F3) if pts else "—",
+                         num(peak, "{:.1f}"), str(len(per))])
+        lines += [table(["condition", "change DBNs at the end ± s.e.", "peak of the mean",
                           "agents"], rows), "",
                   "Reference: about 250 change DBNs in the core world, bounded, with two "
                   "drops (Fig. 7.9); relevant variables increase the count, irrelevant ones do "
@@ -335,9 +324,9 @@ def _page(exp: Experiment, sweep: Sweep, res: Results, command: str, spelled: st
             cells = []
             for by_arm in res.calls.values():
                 last = stats.curve(by_arm.get(a, {}))
-                cells.append(_pm(last[-1].mean, last[-1].stderr) if last else "—")
+                cells.append(pm(last[-1].mean, last[-1].stderr, F3) if last else "—")
             rows.append([a, *cells])
-        lines += [_table(["condition", *(f"calls at the end: {n}" for n in res.calls)], rows),
+        lines += [table(["condition", *(f"calls at the end: {n}" for n in res.calls)], rows),
                   "", "Calls count every finished call of an action (practice and as a step "
                   "of a plan), an upper bound of the reference's exploratory calls.", ""]
 
@@ -356,7 +345,7 @@ def _page(exp: Experiment, sweep: Sweep, res: Results, command: str, spelled: st
                 summary = read_summary(sweep.run_dir(key))
                 rows.append([label, str(spec.seed), f"{what}`{key}`",
                              str(summary.get("steps_per_s", "—")) if summary else "not run"])
-    lines += [_table(["condition", "seed", "run", "steps/s"], rows), ""]
+    lines += [table(["condition", "seed", "run", "steps/s"], rows), ""]
     if result is not None and result.failures:
         lines += ["## Failures", ""] + [f"- {f}" for f in result.failures] + [""]
     lines += ["Tables: `curves.csv` (mean and s.e. per condition, task and step), "
