@@ -15,6 +15,7 @@ executor publish what these return. Every message is NaN-free (undefined numbers
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from dataclasses import dataclass, field
@@ -37,6 +38,8 @@ from .bus.schema import (
 from .qlap.curiosity import fallback_weight, iac_weight
 from .qlap.dbn import model_stats
 from .qlap.variables import Kind
+
+log = logging.getLogger("qlap.telemetry")
 
 HISTORY = 32
 """rel(a) values per action carried in a snapshot (the sparkline's width)."""
@@ -185,7 +188,8 @@ def world_msg(agent: Any, world: Any, width: int = 44, height: int = 14) -> Worl
         try:
             qualitative = _qualitative_now(agent, {**obs, **agent.motor},
                                            bool(getattr(world, "discontinuity", False)))
-        except Exception:  # a display must never stop the run (e.g. an invalid observation)
+        except (ValueError, KeyError, IndexError) as exc:  # a display never stops the run
+            log.debug("world view without qualitative values: %s", exc)
             qualitative = {}
     return WorldView(agent.step_count, str(getattr(world, "name", "")), text, values,
                      motor, qualitative)

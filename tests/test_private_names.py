@@ -89,6 +89,56 @@ def foreign_private_uses(source: str) -> list[tuple[int, str]]:
     return sorted(found)
 
 
+def private_module_imports(module: str, is_package: bool, source: str) -> list[tuple[int, str]]:
+    """(line, import) of every import of a private module (``_format``) from outside the
+    package that holds it: ``from .widgets._format import x`` in ``tui.app``, or a library's
+    private module (``textual.widgets._data_table``)."""
+    package = module.split(".") if is_package else module.split(".")[:-1]
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            targets = [[*base, *(node.module or "").split(".")]]
+        elif isinstance(node, ast.Import):
+            targets = [a.name.split(".") for a in node.names]
+        else:
+            continue
+        for parts in targets:
+            parts = [p for p in parts if p]
+            for i, part in enumerate(parts):
+                if _private(part) and parts[:i] != package:
+                    found.append((node.lineno, ".".join(parts)))
+                    break
+    return found
+
+
+def test_no_module_imports_a_private_module_from_outside_its_package():
+    offenders = []
+    for folder in FOLDERS:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            rel = path.relative_to(ROOT).with_suffix("")
+            is_package = rel.name == "__init__"
+            module = ".".join(rel.parts[:-1] if is_package else rel.parts)
+            offenders += [f"{rel}.py:{line}: {what}"
+                          for line, what in private_module_imports(module, is_package,
+                                                                   path.read_text())]
+    assert offenders == []
+
+
+def test_the_private_module_check_by_hand():
+    """A sibling may import a package's private module; its parent package, another
+    package, or any user of a library's private module may not."""
+    sibling = "from ._format import a\nimport tui.widgets._format\n"
+    assert private_module_imports("tui.widgets.actions", False, sibling) == []
+    assert private_module_imports("tui.widgets", True, sibling) == []
+    outside = ("from .widgets._format import b\n"
+               "from textual.widgets._data_table import C\n"
+               "import tui.widgets._format\n")
+    assert private_module_imports("tui.app", False, outside) == [
+        (1, "tui.widgets._format"), (2, "textual.widgets._data_table"),
+        (3, "tui.widgets._format")]
+
+
 def test_no_module_uses_a_private_name_of_another_module():
     offenders = []
     for folder in FOLDERS:

@@ -57,8 +57,8 @@ from .widgets import (
     StatusBar,
     ViewTabs,
     WorldPanel,
+    steps_done,
 )
-from .widgets._format import steps_done
 
 SPEEDS = (0.0, 1000.0, 300.0, 100.0, 30.0, 10.0, 3.0, 1.0)
 """The speed ladder of + and −, fastest first (0 = as fast as possible)."""

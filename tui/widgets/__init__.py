@@ -1,5 +1,6 @@
-"""The TUI's panels, one per module (STYLE.md)."""
+"""The TUI's panels, one per module (docs/tui.md)."""
 
+from ._format import steps_done
 from .actions import ActionsPanel
 from .calllist import CallListPanel
 from .counters import CountersPanel
@@ -14,4 +15,4 @@ from .world import WorldPanel
 
 __all__ = ["ActionsPanel", "CallListPanel", "CountersPanel", "GoalScreen", "HelpScreen",
            "IACPanel", "LandmarksPanel", "PlansPanel", "RuntimePanel", "StatusBar", "ViewTabs",
-           "WorldPanel"]
+           "WorldPanel", "steps_done"]

@@ -11,6 +11,7 @@ from textual.binding import Binding, BindingType
 from textual.containers import Vertical
 from textual.message import Message
 from textual.widgets import DataTable
+from textual.widgets.data_table import CellDoesNotExist
 
 from qlap_runtime.bus.schema import ActionInfo, Knowledge
 
@@ -129,7 +130,7 @@ class ActionsPanel(Vertical):
             return ""
         try:
             return str(t.coordinate_to_cell_key(t.cursor_coordinate).row_key.value)
-        except Exception:
+        except CellDoesNotExist:
             return ""
 
     # ----------------------------------------------------------------------------- columns
