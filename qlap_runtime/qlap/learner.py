@@ -501,13 +501,15 @@ class ModelLearner:
     # -- contexts (Algorithm 3) -----------------------------------------------------------------
     def context_candidates(self, dbn: DBN) -> list[int]:
         """Valid context variables (App. D.1): magnitude with ≥ 1 landmark, or nominal."""
-        key = (id(self.perception), self.perception.landmarks_version)
+        # Keyed by the perception object itself (held, so never mistaken for a later one at
+        # the same address) and its landmarks' version.
+        per, version = self.perception, self.perception.landmarks_version
         cached = getattr(self, "_candidate_vars", None)
-        if cached is None or cached[0] != key:
+        if cached is None or cached[0] is not per or cached[1] != version:
             base = [v.index for v in self.table if v.kind is Kind.NOMINAL or (
-                v.kind is Kind.MAGNITUDE and self.perception.spaces[v.index].landmarks)]
-            cached = self._candidate_vars = (key, base)
-        return [v for v in cached[1] if v not in (dbn.antecedent.var, dbn.consequent.var)]
+                v.kind is Kind.MAGNITUDE and per.spaces[v.index].landmarks)]
+            cached = self._candidate_vars = (per, version, base)
+        return [v for v in cached[2] if v not in (dbn.antecedent.var, dbn.consequent.var)]
 
     def evaluator(self, dbn: DBN, extra: tuple[int, QuantitySpace] | None = None,
                   rows: np.ndarray | None = None):

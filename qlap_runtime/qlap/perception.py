@@ -462,12 +462,14 @@ class Perception:
 
     def _history_cache(self) -> dict:
         """Per-history derived values, valid until the next perceive (or a new history)."""
-        key = (self.steps_seen, self.hist_len, self.hist_head, id(self.hist_x), id(self.hist_q))
+        # The history arrays themselves are held and compared by identity (an id() alone could
+        # name a new array at a freed one's address).
+        key = (self.steps_seen, self.hist_len, self.hist_head)
         c = getattr(self, "_hist_cache", None)
-        if c is None or c[0] != key:
-            c = (key, {})
+        if c is None or c[0] != key or c[1] is not self.hist_x or c[2] is not self.hist_q:
+            c = (key, self.hist_x, self.hist_q, {})
             self._hist_cache = c
-        return c[1]
+        return c[3]
 
     def history(self) -> tuple[np.ndarray, np.ndarray]:
         """The stored real and qualitative histories in time order (oldest first).
