@@ -602,11 +602,8 @@ def kept_checkpoint(run_dir: Path | None) -> str:
 
 
 def _cmd_run_inner(args: argparse.Namespace) -> int:
-    from .agent_run import run_agent
-    from .metrics import PlainProgress
-    from .placements.resume import in_flight_problem
     from .qlap import Params
-    from .qlap.checkpoint import CheckpointError, checkpoint_seed, load_agent
+    from .qlap.checkpoint import checkpoint_seed
 
     if args.world is None:            # a resumed agent goes on in the world it learned in
         from .analysis.runs import recorded_world
@@ -628,68 +625,79 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
         args.seed = seed if seed is not None else args.seed
     if args.seed is None:
         args.seed = 0
-    world = _make_world(args.world, "run")
-    if world is None:
-        return 2
     interactive = sys.stdout.isatty() and not args.headless
     tui = interactive and args.placement is None and args.resume is None
     args.placement = args.placement or "embedded"
-    if args.groups is not None and args.placement != "processes":
-        print(f"qlap run: --groups {args.groups} goes with --placement processes",
-              file=sys.stderr)
-        world.close()
-        return 2
     if args.lag is None:
         args.lag = 0 if args.placement == "sync" or tui else DEFAULT_ACTOR_LAG
-    if (problem := lag_problem(args.lag)) is not None:
+    problem = _run_args_problem(args, tui, interactive)
+    params = None
+    if problem is None:
+        try:
+            changes = {"batch_lag": args.lag}
+            if args.babble_steps is not None:
+                changes["babble_steps"] = args.babble_steps
+            params = Params(**changes)
+        except ValueError as exc:
+            problem = str(exc)
+    if problem is not None:                 # every flag is checked before a world is made
         print(f"qlap run: {problem}", file=sys.stderr)
-        world.close()
         return 2
-    try:
-        changes = {"batch_lag": args.lag}
-        if args.babble_steps is not None:
-            changes["babble_steps"] = args.babble_steps
-        params = Params(**changes)
-    except ValueError as exc:
-        print(f"qlap run: {exc}", file=sys.stderr)
-        world.close()
-        return 2
-    if args.hz is not None and args.clock != "realtime":
-        print(f"qlap run: --hz {args.hz:g} goes with --clock realtime", file=sys.stderr)
-        world.close()
-        return 2
+    assert params is not None
     args.hz = 100.0 if args.hz is None else args.hz
+    world = _make_world(args.world, "run")
+    if world is None:
+        return 2
+    if tui:
+        world.close()                       # made to check the spec; the UI's agent makes its own
+        return _run_tui(args)
+    if args.placement != "sync":
+        return _run_actors(args, world, params)
+    try:
+        return _run_sync(args, world, params)
+    finally:
+        world.close()
+
+
+def _run_args_problem(args: argparse.Namespace, tui: bool, interactive: bool) -> str | None:
+    """Why ``qlap run``'s flags do not go together (one line), or None."""
+    if args.groups is not None and args.placement != "processes":
+        return f"--groups {args.groups} goes with --placement processes"
+    if (problem := lag_problem(args.lag)) is not None:
+        return problem
+    if args.hz is not None and args.clock != "realtime":
+        return f"--hz {args.hz:g} goes with --clock realtime"
     if tui:
         ignored = [flag for flag, given in (("--record", args.record is not None),
                                             ("--clock realtime", args.clock == "realtime"))
                    if given]
         if ignored:
-            print(f"qlap run: {' and '.join(ignored)} go with --headless (the terminal UI "
-                  "runs its agent in lockstep, without recording; `qlap record --connect` "
-                  "records a run started with --listen)", file=sys.stderr)
-            world.close()
-            return 2
-        world.close()
-        return _run_tui(args)
+            return (f"{' and '.join(ignored)} go with --headless (the terminal UI runs its "
+                    "agent in lockstep, without recording; `qlap record --connect` records a "
+                    "run started with --listen)")
+        return None
     if args.clock == "realtime" and args.placement == "sync":
-        print("qlap run: --clock realtime needs --placement embedded or processes",
-              file=sys.stderr)
-        world.close()
-        return 2
-    if args.placement != "sync":
-        return _run_actors(args, world, params)
-    if args.record is not None or (args.listen and not interactive):
-        print("qlap run: --record and --listen need the bus: use --placement embedded "
-              "(or the terminal UI for --listen)", file=sys.stderr)
-        world.close()
-        return 2
+        return "--clock realtime needs --placement embedded or processes"
+    if args.placement == "sync" and (args.record is not None
+                                     or (args.listen and not interactive)):
+        return ("--record and --listen need the bus: use --placement embedded (or the "
+                "terminal UI for --listen)")
+    return None
+
+
+def _run_sync(args: argparse.Namespace, world: Any, params: Any) -> int:
+    """``qlap run --placement sync``: Algorithm 2 in this process, with a progress bar."""
+    from .agent_run import run_agent
+    from .metrics import PlainProgress
+    from .placements.resume import in_flight_problem
+    from .qlap.checkpoint import CheckpointError, load_agent
+
     agent = None
     restored = False
     if args.resume is not None:
         clash = resume_clash(args.resume, args.out)
         if clash is not None:
             print(f"qlap run: --resume: {clash}", file=sys.stderr)
-            world.close()
             return 2
         try:
             agent = load_agent(args.resume)
@@ -700,11 +708,9 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
             restored = _restore_world(world, args.resume)
         except CheckpointError as exc:
             print(f"qlap run: --resume: {exc}", file=sys.stderr)
-            world.close()
             return 2
     out = _prepare_out(args)
     if out is None:
-        world.close()
         return 2
     progress_cb = None
     bar = None
@@ -741,7 +747,6 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.stop()
-        world.close()
     if plain is not None:
         plain.final(summary)
     print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
