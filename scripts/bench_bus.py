@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
-import socket
 import statistics
 import sys
 import time
@@ -30,15 +29,10 @@ import zenoh
 from qlap_runtime.bus.bridge import Publisher, TrioSubscriber
 from qlap_runtime.bus.config import client_config, embedded_config, router_config
 from qlap_runtime.bus.schema import Motor, Sense, encode
+from qlap_runtime.placements.launcher import free_port
 
 RUN = "bench"
 VALUES = {f"v{i:02d}": 0.123456 * i for i in range(8)}  # ~200-byte payloads
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 async def _echo_loop(session: zenoh.Session, stop_after: int) -> None:
@@ -94,7 +88,7 @@ def _echo_process(endpoint: str, n: int) -> None:
 
 
 async def two_processes(n: int) -> None:
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     with zenoh.open(router_config(ep)), zenoh.open(client_config(ep)) as s:
         proc = mp.get_context("spawn").Process(target=_echo_process, args=(ep, n + 100))
         proc.start()
@@ -108,7 +102,7 @@ async def two_processes(n: int) -> None:
 
 
 async def burst(n: int) -> None:
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = f"tcp/127.0.0.1:{free_port()}"
     with zenoh.open(router_config(ep)), zenoh.open(client_config(ep)) as a, \
             zenoh.open(client_config(ep)) as b, \
             TrioSubscriber(a, f"qlap/{RUN}/sense") as sub, Publisher(b, RUN, "sense") as pub:
