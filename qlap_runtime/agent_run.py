@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import threading
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -56,7 +57,8 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
               checkpoint_every: int = 10_000, agent: Agent | None = None,
               keep_checkpoints: int | None = None, metrics_every: int = METRICS_EVERY,
               on_metrics: Callable[[dict[str, Any]], None] | None = None,
-              restored: bool = False) -> tuple[Agent, dict[str, Any]]:
+              restored: bool = False,
+              stop: threading.Event | None = None) -> tuple[Agent, dict[str, Any]]:
     """Run the agent autonomously in ``world`` for ``steps`` steps.
 
     With ``out``: ``checkpoints/step-NNNNNNN`` every ``checkpoint_every`` steps (the newest
@@ -75,7 +77,9 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     its own while the loop goes on (``runtime.background.CheckpointWriter``, docs/decisions.md
     107). ``restored``: the world was set to a
     checkpoint's state (``restore_world``) and continues from it instead of ``reset(seed)``:
-    with the checkpoint's agent the run is then the uninterrupted one's.
+    with the checkpoint's agent the run is then the uninterrupted one's. ``stop`` (set by a
+    signal handler: Ctrl-C, SIGTERM) ends the run between two steps, its outputs written as
+    after the last step; the summary's ``interrupted_at`` names the first step not run.
     """
     params = params_for_world(world, params)
     agent = agent or Agent(world.variables, params, seed=seed)
@@ -93,8 +97,12 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     failed: WorldFailed | None = None
     done = steps
     t0 = time.perf_counter()
+    interrupted: int | None = None
     try:
         for t in range(start, start + steps):
+            if stop is not None and stop.is_set():
+                interrupted, done = t, t - start
+                break
             try:
                 motor = agent.step(t, obs,
                                    discontinuity=bool(getattr(world, "discontinuity", False)))
@@ -127,6 +135,8 @@ def run_agent(world: Any, steps: int, seed: int, out: Path | None = None,
     summary = summary_of(agent, world, seed, done, wall, rejected)
     if failed is not None:
         summary["world_error"] = str(failed)
+    if interrupted is not None:
+        summary["interrupted_at"] = interrupted
     if out is not None:
         out = Path(out)
         atomic_write_json(out / "knowledge.json", agent.knowledge())

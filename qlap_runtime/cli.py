@@ -739,11 +739,14 @@ def _run_sync(args: argparse.Namespace, world: Any, params: Any) -> int:
                            dbns=n["dbns"], plans=n["plans"], lms=n["landmarks"])
 
         bar.start()
+    from .runtime.interrupt import stop_on_signals
+
     try:
-        agent, summary = run_agent(world, args.steps, args.seed, out, params=params,
-                                   progress=progress_cb, agent=agent,
-                                   keep_checkpoints=args.keep_checkpoints, on_metrics=plain,
-                                   restored=restored)
+        with stop_on_signals() as stop:
+            agent, summary = run_agent(world, args.steps, args.seed, out, params=params,
+                                       progress=progress_cb, agent=agent,
+                                       keep_checkpoints=args.keep_checkpoints,
+                                       on_metrics=plain, restored=restored, stop=stop)
     finally:
         if bar is not None:
             bar.stop()
@@ -760,6 +763,11 @@ def _run_sync(args: argparse.Namespace, world: Any, params: Any) -> int:
 
     print(format_knowledge(agent.knowledge(), limit=25))
     _print_written(out)
+    if "interrupted_at" in summary:
+        print(f"qlap run: interrupted before step {summary['interrupted_at']}; what was "
+              f"learned is written — go on from it: qlap run --resume {out}/checkpoints/final "
+              "--placement sync --out NEW_DIR", file=sys.stderr)
+        return 130
     return 0
 
 

@@ -73,6 +73,19 @@ def test_default_run_directory_is_created_and_printed(tmp_path):
 
 
 # --------------------------------------------------------------------------- retention, final
+def test_outputs_are_readable_by_others_as_the_umask_allows(tmp_path):
+    """Files written whole (temporary file + rename) get 0666 less the umask, as open() would
+    give them, not mkstemp's 0600 (the run's credentials alone stay private)."""
+    sync_run(tmp_path / "run", 1000)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    want = 0o666 & ~mask
+    files = [tmp_path / "run" / n for n in ("knowledge.json", "summary.json")]
+    files += sorted((tmp_path / "run" / "checkpoints" / "step-0001000").iterdir())
+    assert {f.name: f.stat().st_mode & 0o777 for f in files} == \
+        {f.name: want for f in files}
+
+
 def test_retention_keeps_the_newest_n_and_final_links_to_the_last(tmp_path):
     from qlap_runtime.analysis.runs import find_checkpoints, load_knowledge
     from qlap_runtime.analysis.timeline import knowledge_timeline
@@ -477,3 +490,30 @@ def test_unwritable_out_is_a_one_line_error_before_the_run(tmp_path, monkeypatch
     assert rc == 2
     assert err.strip() == f"qlap run: --out {out}: cannot write there ({text})"
     assert not (out / "metrics.jsonl").exists()
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signal_stops_a_sync_run_between_two_steps_with_its_outputs(tmp_path, sig):
+    """Ctrl-C or SIGTERM: the run ends between two steps as after its last one — knowledge,
+    summary and checkpoints/final written — and says how to go on (exit 130)."""
+    import signal
+    import time
+
+    out = tmp_path / "run"
+    qlap = str(Path(sys.executable).parent / "qlap")
+    p = subprocess.Popen([qlap, "run", "--headless", "--placement", "sync", "--world", WORLD,
+                          "--steps", "1000000", "--out", str(out), "--quiet"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "metrics.jsonl").is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        p.send_signal(getattr(signal, sig))
+        _, err = p.communicate(timeout=120)
+    finally:
+        p.kill()
+    assert p.returncode == 130, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert 0 < summary["steps"] == summary["interrupted_at"] < 1_000_000
+    assert (out / "checkpoints" / "final" / "agent.json").is_file()
+    assert f"go on from it: qlap run --resume {out}/checkpoints/final" in err
