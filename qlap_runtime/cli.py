@@ -895,13 +895,15 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
         plain = PlainProgress(args.steps, start=ctx.start)
         stop = threading.Event()
         follower = follow_metrics(out / METRICS_FILE, plain, stop)
+    signalled: list[int] = []
     try:
         if args.placement == "embedded":
+            from .placements.launcher import quit_on_signals
             from .runtime.progress import watch_progress
 
             watchers = () if args.quiet or plain is not None else (watch_progress,)
             summary = run_embedded(ctx, tuple(args.listen), record=args.record,
-                                   watchers=watchers)
+                                   watchers=(*watchers, quit_on_signals(signalled)))
         else:
             from .placements.launcher import free_port
 
@@ -932,7 +934,28 @@ def _run_actors(args: argparse.Namespace, world, params) -> int:
 
     print(format_knowledge(knowledge, limit=25))
     _print_written(out)
+    if signalled:
+        final = out / "checkpoints" / "final"
+        go_on = (f" — go on from it: qlap run --resume {final} --out NEW_DIR"
+                 if _resumes_exactly(final, summary["steps"]) else
+                 " (checkpoints/final has a batch in flight)" + kept_checkpoint(out))
+        print(f"qlap run: interrupted after {summary['steps']:,} steps; what was learned is "
+              f"written{go_on}", file=sys.stderr)
+        return 130
     return 0
+
+
+def _resumes_exactly(checkpoint: Path, steps_done: int) -> bool:
+    """Whether an actor placement's checkpoint after ``steps_done`` steps resumes exactly (no
+    batch in flight, placements/resume.py)."""
+    from .placements.resume import in_flight_problem
+    from .qlap.checkpoint import CheckpointError, load_agent
+
+    try:
+        params = load_agent(checkpoint).learner.params
+    except CheckpointError:
+        return False
+    return in_flight_problem(checkpoint, params, steps_done, "embedded") is None
 
 
 def _cmd_actor(args: argparse.Namespace) -> int:

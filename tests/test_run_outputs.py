@@ -492,16 +492,18 @@ def test_unwritable_out_is_a_one_line_error_before_the_run(tmp_path, monkeypatch
     assert not (out / "metrics.jsonl").exists()
 
 
-@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
-def test_a_signal_stops_a_sync_run_between_two_steps_with_its_outputs(tmp_path, sig):
+@pytest.mark.parametrize(("placement", "sig"), [("sync", "SIGINT"), ("sync", "SIGTERM"),
+                                                ("embedded", "SIGTERM")])
+def test_a_signal_stops_a_run_between_two_steps_with_its_outputs(tmp_path, placement, sig):
     """Ctrl-C or SIGTERM: the run ends between two steps as after its last one — knowledge,
-    summary and checkpoints/final written — and says how to go on (exit 130)."""
+    summary and checkpoints/final written — and says how to go on (exit 130); the actors
+    take it as a viewer's ``quit``."""
     import signal
     import time
 
     out = tmp_path / "run"
     qlap = str(Path(sys.executable).parent / "qlap")
-    p = subprocess.Popen([qlap, "run", "--headless", "--placement", "sync", "--world", WORLD,
+    p = subprocess.Popen([qlap, "run", "--headless", "--placement", placement, "--world", WORLD,
                           "--steps", "1000000", "--out", str(out), "--quiet"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -514,6 +516,8 @@ def test_a_signal_stops_a_sync_run_between_two_steps_with_its_outputs(tmp_path, 
         p.kill()
     assert p.returncode == 130, err
     summary = json.loads((out / "summary.json").read_text())
-    assert 0 < summary["steps"] == summary["interrupted_at"] < 1_000_000
+    assert 0 < summary["steps"] < 1_000_000
     assert (out / "checkpoints" / "final" / "agent.json").is_file()
-    assert f"go on from it: qlap run --resume {out}/checkpoints/final" in err
+    assert f"interrupted after {summary['steps']:,} steps; what was learned is written" in err \
+        if placement != "sync" else summary["interrupted_at"] == summary["steps"]
+    assert "go on from it: qlap run --resume " in err

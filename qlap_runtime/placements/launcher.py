@@ -171,6 +171,34 @@ async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, An
             stop.set()
 
 
+def quit_on_signals(fired: list[int]) -> Callable[..., Any]:
+    """A watcher (``run_embedded(watchers=...)``) that turns the first Ctrl-C, SIGTERM or
+    SIGHUP into the ``quit`` a viewer would send: every actor ends at the world's last step
+    and the run's outputs are written, as after its last step (docs/runtime.md, "Stopping").
+    A Ctrl-C after that cancels the actors at once. ``fired`` gets the signal's number."""
+    import signal
+
+    from ..bus.keys import key
+    from ..bus.schema import Control, encode
+
+    async def watch(session: Any, ctx: Any, stop: trio.Event) -> None:
+        with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as sigs:
+            async with trio.open_nursery() as nursery:
+                async def until_done() -> None:
+                    await stop.wait()
+                    nursery.cancel_scope.cancel()
+
+                nursery.start_soon(until_done)
+                async for signum in sigs:
+                    if fired and signum == signal.SIGINT:
+                        raise KeyboardInterrupt
+                    if not fired:
+                        fired.append(int(signum))
+                        session.put(key(ctx.run_id, "control"), encode(Control("quit")))
+
+    return watch
+
+
 def _listen_auth(ctx: Any, listen: tuple[str, ...]) -> tuple[Any, dict[str, Any]]:
     """Authorisation by default for an embedded run that listens (docs/security.md): fresh
     ``tui`` and ``viewer`` credentials and the run's ACL; the credentials go to
