@@ -9,6 +9,8 @@
 
 from __future__ import annotations
 
+import signal
+
 from .app import BusFeed, QlapApp
 from .driver import DriverProcess, LocalDriver
 
@@ -33,12 +35,19 @@ def run_process(proc: DriverProcess) -> DriverProcess:
     UI here connected to it on loopback; quitting the UI stops the agent."""
     if proc.exitcode is None and not proc.alive:
         proc.start()
-    app = QlapApp(connect=proc.endpoint, run_id=proc.run_id, **proc.client)
+    # SIGTERM or the terminal closing (SIGHUP) end the UI as its `q` does: the agent is told
+    # to quit and writes its outputs (and the terminal is restored).
+    app = QlapApp(connect=proc.endpoint, run_id=proc.run_id, quit_on=(signal.SIGTERM,
+                                                                      signal.SIGHUP),
+                  **proc.client)
     try:
         app.run()
     finally:
         if proc.alive and not app.run_finished:    # quit mid-run: the agent saves first
-            print("stopping the agent: it writes its final checkpoint and outputs …",
-                  flush=True)
+            try:
+                print("stopping the agent: it writes its final checkpoint and outputs …",
+                      flush=True)
+            except OSError:                        # the terminal is gone (SIGHUP)
+                pass
         proc.stop()
     return proc

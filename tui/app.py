@@ -14,6 +14,7 @@ and updates the panels: the agent never waits for the UI, and a burst costs one 
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections import deque
@@ -185,8 +186,11 @@ class QlapApp(App):
 
     def __init__(self, session: zenoh.Session | None = None, *,
                  connect: Sequence[str] | str | None = None, run_id: str | None = None,
-                 driver: Any = None, refresh_hz: float = 10.0, **client: Any) -> None:
+                 driver: Any = None, refresh_hz: float = 10.0,
+                 quit_on: Sequence[int] = (), **client: Any) -> None:
         super().__init__()
+        self._quit_on = tuple(quit_on)
+        """Signals that quit the UI as ``q`` does (asyncio signal handlers, set on mount)."""
         if driver is not None:
             session = driver.session
             run_id = run_id or driver.run_id
@@ -242,6 +246,9 @@ class QlapApp(App):
         return self.screen_stack[0].query_one(cls)
 
     def on_mount(self) -> None:
+        loop = asyncio.get_running_loop()
+        for sig in self._quit_on:
+            loop.add_signal_handler(sig, self.call_next, self.action_quit)
         if self._session is None:
             self._session = zenoh.open(client_config(self._connect, **self._client))
         session = self._session

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import signal
 import threading
 import time
 from collections import deque
@@ -449,10 +451,27 @@ def _child_main(spec_json: str, ready: Any = None) -> None:
     params = Params().replace(**overrides) if overrides else None
     spec.setdefault("world_spec", world_spec)
 
+    # The terminal's signals are the UI's: Ctrl-C and the terminal closing (SIGHUP, sent to the
+    # whole foreground group) reach this process too, and the UI tells it to quit. A SIGTERM
+    # meant for it alone stops it as `q` does: the outputs are written.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
     d = LocalDriver(world, params=params, **spec)
+    signal.signal(signal.SIGTERM, lambda *_: d.stop())
     d.start()
     if ready is not None:
         ready.set()                      # listening: viewers may connect
+    parent = os.getppid()
+
+    def orphaned() -> None:              # the UI's process died (SIGKILL): quit as `q` would
+        while d.alive:
+            time.sleep(1.0)
+            if os.getppid() != parent:
+                log.warning("the UI's process is gone: the agent stops and writes its outputs")
+                d.stop()
+                return
+
+    threading.Thread(target=orphaned, name="qlap-watch-ui", daemon=True).start()
     try:
         d.wait()
     finally:
