@@ -182,3 +182,47 @@ def test_quitting_a_finished_run_says_nothing_about_stopping_it(tmp_path):
         assert json.loads(summary.read_text())["placement"] == "local"
     finally:
         term.close()
+
+
+def _wait_running(term: Terminal, argv: list[str]) -> None:
+    deadline = time.monotonic() + START_TIMEOUT
+    while True:
+        text = term.text()
+        steps = _steps_seen(text)
+        if "Runtime" in text and len(set(steps)) >= 2 and max(steps) > min(steps):
+            return
+        assert term.proc.poll() is None, f"`{' '.join(argv)}` ended:\n{term.tail()}"
+        assert time.monotonic() < deadline, f"the agent did not step:\n{term.tail()}"
+        time.sleep(0.2)
+
+
+@pytest.mark.timeout(START_TIMEOUT + EXIT_TIMEOUT + 60)
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGKILL"])
+def test_a_killed_ui_leaves_an_agent_that_writes_its_outputs_and_ends(tmp_path, sig):
+    """`kill` of the UI's process (SIGTERM: it quits as `q` does; SIGKILL: the agent process
+    notices its parent is gone) never leaves an agent running: the outputs are written and
+    every process of the run ends."""
+    argv = [*_qlap_command(), "run", "--world", "core2d", "--steps", "100000000"]
+    term = Terminal(argv, cwd=tmp_path, columns=COLUMNS, rows=ROWS)
+    try:
+        _wait_running(term, argv)
+        os.kill(term.proc.pid, getattr(signal, sig))
+        term.proc.wait(EXIT_TIMEOUT)                  # the UI's process ends (reaped here)
+        for _ in range(int(EXIT_TIMEOUT / 0.2)):     # the agent's outputs, final the last
+            if list(tmp_path.rglob("checkpoints/final")):
+                break
+            time.sleep(0.2)
+        summary = list(tmp_path.rglob("summary.json"))
+        assert summary, f"no outputs within {EXIT_TIMEOUT:.0f} s after {sig}:\n{term.tail()}"
+        assert (summary[0].parent / "knowledge.json").is_file()
+        assert (summary[0].parent / "checkpoints" / "final").exists()
+        for _ in range(int(EXIT_TIMEOUT / 0.2)):     # and the agent's process too
+            try:
+                os.killpg(term.proc.pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.2)
+        else:
+            pytest.fail(f"a process of the run is still alive {EXIT_TIMEOUT:.0f} s after {sig}")
+    finally:
+        term.close()
