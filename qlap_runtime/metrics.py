@@ -209,10 +209,20 @@ class PlainProgress:
         self._last_t = self._t0
         self._last_done = 0
         self._lock = threading.Lock()
+        self.closed = False
+        """The reader of the stream left (a closed pipe): nothing more is printed."""
 
     def _print(self, text: str) -> None:
+        """Print a line; a reader that left (``qlap run … | head``) ends the printing, not
+        the run: the rest of the progress goes to /dev/null."""
+        if self.closed:
+            return
         stream = self.stream if self.stream is not None else sys.stdout
-        print(text, file=stream, flush=True)
+        try:
+            print(text, file=stream, flush=True)
+        except BrokenPipeError:
+            self.closed = True
+            _silence(stream)
 
     def __call__(self, line: dict[str, Any]) -> None:
         with self._lock:
@@ -240,6 +250,17 @@ class PlainProgress:
             wall = float(summary.get("wall_time_s") or 0.0)
             self._print(self.format(int(summary.get("steps", self.total)), rate, summary,
                                     f"done in {_duration(wall)}"))
+
+
+def _silence(stream: TextIO) -> None:
+    """Point a closed pipe's file descriptor at /dev/null, so that later writes and the
+    interpreter's flush at exit do not fail on it again (the Python docs' "Note on SIGPIPE")."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, stream.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):   # no file descriptor (a captured stream)
+        pass
 
 
 def follow_metrics(path: str | Path, on_line: LineFn, stop: threading.Event,

@@ -521,3 +521,21 @@ def test_a_signal_stops_a_run_between_two_steps_with_its_outputs(tmp_path, place
     assert f"interrupted after {summary['steps']:,} steps; what was learned is written" in err \
         if placement != "sync" else summary["interrupted_at"] == summary["steps"]
     assert "go on from it: qlap run --resume " in err
+
+
+@pytest.mark.parametrize("placement", ["sync", "embedded"])
+def test_a_reader_that_leaves_stops_the_printing_not_the_run(tmp_path, placement):
+    """`qlap run … | head -2`: the progress lines stop when the pipe closes; the run goes on
+    to its last step and writes its outputs."""
+    out = tmp_path / "run"
+    qlap = str(Path(sys.executable).parent / "qlap")
+    p = subprocess.Popen([qlap, "run", "--headless", "--placement", placement, "--world", WORLD,
+                          "--steps", "12000", "--out", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert p.stdout is not None
+    p.stdout.readline()
+    p.stdout.close()                                     # the reader leaves
+    _, err = p.communicate(timeout=300)
+    assert p.returncode in (0, 141), err.decode()
+    assert json.loads((out / "summary.json").read_text())["steps"] == 12000
+    assert (out / "checkpoints" / "final").exists()
