@@ -648,6 +648,11 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
     world = _make_world(args.world, "run")
     if world is None:
         return 2
+    if args.resume is not None and (
+            mismatch := _world_mismatch(args.resume, world, args.world)) is not None:
+        print(f"qlap run: --resume: {mismatch}", file=sys.stderr)
+        world.close()
+        return 2
     if tui:
         world.close()                       # made to check the spec; the UI's agent makes its own
         return _run_tui(args)
@@ -1015,7 +1020,13 @@ def _cmd_show(args: argparse.Namespace) -> int:
         return 2
     from .analysis.show import format_knowledge
 
-    print(format_knowledge(knowledge, show_all=args.all))
+    try:
+        text = format_knowledge(knowledge, show_all=args.all)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        print(f"qlap show: {args.path}: malformed knowledge ({type(exc).__name__}: {exc})",
+              file=sys.stderr)
+        return 2
+    print(text)
     return 0
 
 
@@ -1029,7 +1040,7 @@ def _world_mismatch(checkpoint: Path, world: Any, spec: str) -> str | None:
     try:
         meta = json.loads((resolve_checkpoint(checkpoint) / "learner.json").read_text())
         names = [v["name"] for v in meta["variables"] if v.get("source", -1) == -1]
-    except (OSError, ValueError, KeyError, TypeError, CheckpointError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, CheckpointError):
         return None
     if names == [v.name for v in world.variables]:
         return None
@@ -1132,6 +1143,12 @@ def _cmd_analysis(args: argparse.Namespace) -> int:
         print(main_report(args.runs, as_json=args.json))
     except (AnalysisError, OutputError) as exc:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        if args.command == "curve":
+            raise
+        print(f"qlap report: {', '.join(map(str, args.runs))}: malformed knowledge "
+              f"({type(exc).__name__}: {exc})", file=sys.stderr)
         return 2
     return 0
 

@@ -421,3 +421,25 @@ def test_a_stopped_run_names_the_checkpoint_it_keeps(tmp_path):
     (newest / "world.json").write_text("{}")
     assert kept_checkpoint(tmp_path) == (
         f"; kept: {newest} (go on from it: qlap run --resume {newest} --out NEW_DIR)")
+
+
+def test_resume_in_another_world_is_refused_before_the_run(capsys, tmp_path):
+    """A checkpoint without world.json resumed with another --world: one line naming both
+    worlds, before anything runs or is written (not a failed world at the first step)."""
+    import shutil
+
+    from qlap_runtime.agent_run import run_agent
+    from qlap_runtime.qlap import Params
+
+    world = worlds.make("core2d")
+    try:
+        run_agent(world, 600, 3, out=tmp_path / "a", params=Params(babble_steps=300))
+    finally:
+        world.close()
+    ck = tmp_path / "ck"
+    shutil.copytree(tmp_path / "a" / "checkpoints" / "final", ck)
+    (ck / "world.json").unlink()
+    code, _, err = qlap(capsys, "run", "--headless", "--placement", "sync", "--resume", str(ck),
+                        "--world", "pong", "--steps", "10", "--out", str(tmp_path / "b"))
+    assert_one_line(code, err, "--resume", str(ck), "--world 'pong'")
+    assert not (tmp_path / "b").exists()

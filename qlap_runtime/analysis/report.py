@@ -27,7 +27,7 @@ from typing import Any
 from ..telemetry import pretty
 from . import reference_values as ref
 from .markdown import num
-from .runs import AnalysisError, load_knowledge, run_labels
+from .runs import AnalysisError, load_knowledge, read_summary, recorded_world, run_labels
 from .timeline import (
     KnowledgePoint,
     describe_verdict,
@@ -358,6 +358,10 @@ def report_data(paths: Sequence[Path],
     if not paths:
         raise AnalysisError("give at least one run directory")
     labels = run_labels(paths)
+    worlds = {w for p in paths if (w := _world_of(p)) is not None}
+    if len(worlds) > 1:
+        raise AnalysisError(f"the runs are in different worlds ({', '.join(sorted(worlds))}); "
+                            "one report compares runs of one world")
     figures = [knowledge_figures(load_knowledge(p), resolutions_of(p)) for p in paths]
     timelines = {label: knowledge_timeline(p) if (p / "checkpoints").is_dir() else []
                  for label, p in zip(labels, paths, strict=True)}
@@ -379,6 +383,21 @@ def report_data(paths: Sequence[Path],
             "runs": dict(zip(labels, figures, strict=True)), "mean": mean,
             "timeline": {label: [q.to_json() for q in pts] for label, pts in timelines.items()},
             "growth": growth, "growth_mean": growth_mean, "speed": speeds}
+
+
+def _world_of(path: Path) -> str | None:
+    """The world a run (its summary.json) or a checkpoint (what it records) was learned in."""
+    summary = read_summary(path)
+    if summary is not None and isinstance(summary.get("world"), str):
+        return summary["world"]
+    for where in (path, path / "checkpoints" / "final"):
+        try:
+            world = recorded_world(where)
+        except (OSError, ValueError):
+            continue
+        if world is not None:
+            return world
+    return None
 
 
 def main_report(paths: Sequence[Path], as_json: bool = False) -> str:

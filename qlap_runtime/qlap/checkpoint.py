@@ -438,8 +438,12 @@ def check_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray], where: Pa
     """The semantic checks of a learner checkpoint (variables named by index exist, scalars
     in range, array shapes): a :class:`CheckpointError` naming the field, not an IndexError
     later."""
+    variables = meta.get("variables")
+    if not (isinstance(variables, list) and all(isinstance(v, dict) for v in variables)):
+        raise _bad(where, "variables", f"must be a list of variable records, got "
+                                       f"{str(variables)[:60]!r}")
     try:
-        n = len(meta["variables"])
+        n = len(variables)
         params = Params.from_dict(meta["params"])
     except (KeyError, TypeError, ValueError) as exc:
         raise _bad(where, "variables/params", f"unreadable ({type(exc).__name__}: {exc})"
@@ -496,6 +500,30 @@ def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> Non
     for field in ("step_count", "next_plan_id", "hold_until"):
         if not _is_int(meta.get(field)):
             raise _bad(where, field, f"must be an integer, got {meta.get(field)!r}")
+    if meta["step_count"] != learner.step:
+        raise _bad(where, "step_count", f"is {meta['step_count']}, its learner's step "
+                                        f"{learner.step}")
+    n = len(learner.table)
+
+    def n_values(var: int) -> int:
+        v = learner.table[var]
+        return len(v.values) if v.values else learner.perception.spaces[var].size
+
+    goal = meta.get("goal")
+    if goal is not None and not (isinstance(goal, list) and len(goal) == 2
+                                 and all(_is_int(g) for g in goal) and 0 <= goal[0] < n
+                                 and 0 <= goal[1] < n_values(goal[0])):
+        raise _bad(where, "goal", f"must be null or [variable index, value index], got {goal!r}")
+    selfs = meta.get("self_vars")
+    if not (isinstance(selfs, list) and all(_is_int(v) and 0 <= v < n for v in selfs)):
+        raise _bad(where, "self_vars", f"must be a list of variable indices, got {selfs!r}")
+    for field, allowed in (("mode", ("babble", "command", "practice", "hold", "goal", "idle")),
+                           ("goal_idle", ("babble", "zero"))):
+        if meta.get(field) not in allowed:
+            raise _bad(where, field, f"must be one of {', '.join(allowed)}, got "
+                                     f"{meta.get(field)!r}")
+    if not isinstance(meta.get("learning"), bool):
+        raise _bad(where, "learning", f"must be true or false, got {meta.get('learning')!r}")
 
 
 def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> ModelLearner:
@@ -643,14 +671,16 @@ def load_agent(directory: str | Path) -> Any:
     directory = resolve_checkpoint(directory)
     learner = load_learner(directory)
     jpath = directory / "agent.json"
+    what = jpath
     try:
         meta = json.loads(jpath.read_text())
-        arrays = _unpack_rows(_ungroup(_read_npz(directory / "agent.npz")))
+        what = directory / "agent.npz"
+        arrays = _unpack_rows(_ungroup(_read_npz(what)))
     except FileNotFoundError as exc:
         raise CheckpointError(f"{directory}: not an agent checkpoint ({exc.filename} missing)"
                               ) from None
     except Exception as exc:
-        raise CheckpointError(f"{directory}: corrupt agent checkpoint ({exc})") from None
+        raise CheckpointError(f"{what}: corrupt agent checkpoint ({exc})") from None
     if not isinstance(meta, dict) or meta.get("format") != AGENT_FORMAT:
         raise CheckpointError(f"{jpath}: not a {AGENT_FORMAT} checkpoint")
     if meta.get("version") not in AGENT_READABLE_VERSIONS:

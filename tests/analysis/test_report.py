@@ -13,7 +13,7 @@ from qlap_runtime.analysis.report import (
     main_report,
     narrow_values,
 )
-from qlap_runtime.analysis.runs import load_knowledge
+from qlap_runtime.analysis.runs import AnalysisError, load_knowledge
 from qlap_runtime.telemetry import pretty
 
 
@@ -130,3 +130,17 @@ def test_a_zero_landmark_is_reported_as_0_never_minus_0():
 
     assert [unsigned_zero(t) for t in ("-0", "[-0, 5]", "[-10, -0]", "-0.5", "-05", "0")] == \
         ["0", "[0, 5]", "[-10, 0]", "-0.5", "-05", "0"]
+
+
+def test_runs_of_different_worlds_are_not_averaged(runs, tmp_path):
+    """As `qlap curve`: one report compares runs of one world (summary.json's world)."""
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "knowledge.json").write_text(json.dumps(KNOWLEDGE))
+    (other / "summary.json").write_text(json.dumps({"world": "pong"}))
+    world = json.loads((runs[0] / "summary.json").read_text())["world"]
+    with pytest.raises(AnalysisError, match=rf"different worlds \({world}, pong\)"):
+        main_report([runs[0], other])
+    r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "report", str(runs[0]),
+                        str(other)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "one report compares runs of one world" in r.stderr

@@ -54,6 +54,15 @@ CASES = {
     "motor name": ("agent.json", lambda m: m.update(motor={"nope": 1.0})),
     "dbns[0].consequent": ("learner.json", set_dbn_var),
     "k": ("learner.json", lambda m: m.update(k=10_000_000)),
+    # fields a run would only trip over later, in its loop (a new user's edits)
+    "goal string": ("agent.json", lambda m: m.update(goal="x")),
+    "goal empty": ("agent.json", lambda m: m.update(goal=[])),
+    "goal value": ("agent.json", lambda m: m.update(goal=[0, 999])),
+    "self_vars": ("agent.json", lambda m: m.update(self_vars="x")),
+    "step_count": ("agent.json", lambda m: m.update(step_count=-1)),
+    "learning": ("agent.json", lambda m: m.update(learning="x")),
+    "mode": ("agent.json", lambda m: m.update(mode="dance")),
+    "variables": ("learner.json", lambda m: m.update(variables="x")),
 }
 
 
