@@ -28,6 +28,9 @@ from qlap_runtime.runtime.rules import planreq_rule
 from .convert import REQUEST_FILES, BadRequest, compile_request
 
 NAME = "planner"
+MAX_BAD_REQUESTS = 3
+"""Requests of one step that hold no agent before the planner gives up (a forgery is
+replaced by the executor's own request; the same failure again is the executor's)."""
 
 
 def compiled_steps(ctx: RunContext, after: int) -> list[int]:
@@ -72,6 +75,7 @@ class PlannerActor(ActorBase):
         """Answer ``planreq(t)``; False when the run ended (before t, or at the last step).
         A request that holds no agent is counted and asked for again (:class:`BadRequest`)."""
         due: list | None = None
+        bad = 0
         while True:
             try:
                 req = await self.requests.get(t)
@@ -93,6 +97,10 @@ class PlannerActor(ActorBase):
                 break
             except BadRequest as e:
                 self.actor.counter.reject(self.requests.key, str(e))
+                bad += 1
+                if bad >= MAX_BAD_REQUESTS:         # not a forgery: the executor's own
+                    raise RuntimeError(f"{e} ({bad} times: the executor's request itself "
+                                       "cannot be read)") from None
                 self.requests.again(t)
             finally:
                 self.actor.slot.busy(0)

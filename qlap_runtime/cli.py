@@ -384,6 +384,8 @@ def _check_args(args: argparse.Namespace) -> None:
     value = getattr(args, attr, None) if attr else None
     if value is not None:
         problem = _file_problem(Path(value))
+        if problem is None and args.command != "snapshot" and Path(value).exists():
+            problem = "exists: give a new file (a recording is never overwritten)"
         if problem is not None:
             raise CliError(f"{flag} {value}: {problem}")
 

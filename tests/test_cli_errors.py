@@ -64,6 +64,18 @@ def test_run_record_into_a_missing_directory(capsys, tmp_path):
     assert not (tmp_path / "run").exists()          # refused before anything started
 
 
+@pytest.mark.parametrize("command", ["run", "record"])
+def test_an_existing_recording_is_never_overwritten(capsys, tmp_path, command):
+    target = tmp_path / "old.mcap"
+    target.write_bytes(b"a recording")
+    argv = (["run", "--headless", "--quiet", "--steps", "10", "--out", str(tmp_path / "run"),
+             "--record", str(target)] if command == "run" else
+            ["record", "--connect", "tcp/127.0.0.1:9", "--out", str(target)])
+    code, _, err = qlap(capsys, *argv)
+    assert_one_line(code, err, str(target), "exists", "never overwritten")
+    assert target.read_bytes() == b"a recording" and not (tmp_path / "run").exists()
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs /proc")
 def test_run_record_into_a_directory_that_refuses_files(capsys, tmp_path):
     """/proc exists but takes no new file: refused before the run starts, not after."""

@@ -500,8 +500,10 @@ def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> Non
     for field in ("step_count", "next_plan_id", "hold_until"):
         if not _is_int(meta.get(field)):
             raise _bad(where, field, f"must be an integer, got {meta.get(field)!r}")
-    if meta["step_count"] != learner.step:
-        raise _bad(where, "step_count", f"is {meta['step_count']}, its learner's step "
+    # The agent's last step is its learner's, or the one before it (a plan request's agent
+    # has observed step t), or later (evaluation steps do not reach the learner).
+    if meta["step_count"] < learner.step - 1:
+        raise _bad(where, "step_count", f"is {meta['step_count']}, before its learner's step "
                                         f"{learner.step}")
     n = len(learner.table)
 

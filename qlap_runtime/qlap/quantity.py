@@ -36,8 +36,14 @@ class Landmark:
 
     def label(self) -> str:
         if self.lb == self.ub:
-            return f"{self.lb:.6g}"
-        return f"[{self.lb:.6g}, {self.ub:.6g}]"
+            return _num(self.lb)
+        return f"[{_num(self.lb)}, {_num(self.ub)}]"
+
+
+def _num(x: float) -> str:
+    """A landmark's number in a label: six significant digits, and 0 never written -0 (a
+    motor's initial landmark 0 of Table 3.1 may be stored as -0.0)."""
+    return f"{x + 0.0:.6g}"
 
 
 class QuantitySpace:
@@ -109,8 +115,8 @@ class QuantitySpace:
         if q % 2 == 1:
             return self.landmarks[q // 2].label()
         lo, hi = self.bounds(q)
-        lo_s = "-inf" if lo == -math.inf else f"{lo:.6g}"
-        hi_s = "+inf" if hi == math.inf else f"{hi:.6g}"
+        lo_s = "-inf" if lo == -math.inf else _num(lo)
+        hi_s = "+inf" if hi == math.inf else _num(hi)
         return f"({lo_s}, {hi_s})"
 
     def interval_of_range(self, lb: float, ub: float) -> int | None:
