@@ -96,6 +96,19 @@ def place_final_parts(checkpoints: Path) -> None:
     shutil.rmtree(parts, ignore_errors=True)
 
 
+def discard_incomplete(checkpoints: Path) -> list[Path]:
+    """After a run that stopped early (a full disk, Ctrl-C, an actor that failed): remove the
+    ``step-N`` directories that hold another actor's part but no agent (the executor's write
+    never came or failed), so that every checkpoint left is whole; returns them."""
+    gone = []
+    root = Path(checkpoints)
+    for d in sorted(root.glob("step-*")) if root.is_dir() else ():
+        if d.is_dir() and not d.is_symlink() and not (d / "agent.json").is_file():
+            shutil.rmtree(d, ignore_errors=True)
+            gone.append(d)
+    return gone
+
+
 FINAL_PARTS_WAIT_S = 60.0
 """How long a distributed run's executor waits for the world and contingency actors to end."""
 

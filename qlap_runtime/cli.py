@@ -629,6 +629,9 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
         args.seed = 0
     interactive = sys.stdout.isatty() and not args.headless
     tui = interactive and args.placement is None and args.resume is None
+    if interactive and args.placement is None and args.resume is not None:
+        print("qlap run: --resume goes on headless (the terminal UI starts new runs only)",
+              file=sys.stderr)
     args.placement = args.placement or "embedded"
     if args.lag is None:
         args.lag = 0 if args.placement == "sync" or tui else DEFAULT_ACTOR_LAG
@@ -1139,9 +1142,12 @@ def _cmd_analysis(args: argparse.Namespace) -> int:
         if args.command == "curve" and args.out is not None:
             check_out(args.out, min_free=2**20)     # before the evaluations, not after
         if args.command == "curve":
-            return main_curve(args.runs, args.task, args.trials, args.jobs, args.seed,
-                              args.out, args.world, echo=lambda s: print(s, flush=True),
-                              every=args.every, at=args.at)
+            from .runtime.interrupt import interrupt_on_signals
+
+            with interrupt_on_signals():
+                return main_curve(args.runs, args.task, args.trials, args.jobs, args.seed,
+                                  args.out, args.world, echo=lambda s: print(s, flush=True),
+                                  every=args.every, at=args.at)
         print(main_report(args.runs, as_json=args.json))
     except (AnalysisError, OutputError) as exc:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)

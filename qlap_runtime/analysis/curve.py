@@ -352,7 +352,11 @@ def _run_pending(pending: list[tuple[Key, EvalJob, Checkpoint | None]], jobs: in
                  f"± {row.stderr:.3f}, success {row.success_rate:.2f} "
                  f"({res['seconds']:.1f} s)")
     except BaseException:
+        # Ctrl-C (or an error): the evaluations still running are stopped, not waited for —
+        # their workers are this process's children (curve.csv keeps what finished).
         pool.shutdown(wait=False, cancel_futures=True)
+        for child in multiprocessing.active_children():
+            child.terminate()
         raise
     pool.shutdown()
     return failures

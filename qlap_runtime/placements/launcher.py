@@ -134,10 +134,11 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     try:
         await _embedded_actors(ctx, listen, auth, record, extra, watchers, watchdog, results)
     except BaseException:
-        if ctx.board.stalled is not None and ctx.out is not None:
-            from actors.checkpoint_parts import place_final_parts
+        if ctx.out is not None:
+            from actors.checkpoint_parts import discard_incomplete, place_final_parts
 
             place_final_parts(Path(ctx.out) / "checkpoints")   # the world's, into final
+            discard_incomplete(Path(ctx.out) / "checkpoints")  # only whole checkpoints stay
         raise
     return _finish(ctx, "embedded", results, time.perf_counter() - t0)
 
@@ -372,6 +373,13 @@ def run_processes(ctx: Any, listen_port: int | None = None, poll: float = 0.05, 
     previous = signal.signal(signal.SIGTERM, on_term)
     try:
         return _run_processes(ctx.with_(groups=layout), listen_port, poll, record, on_poll)
+    except BaseException:
+        if ctx.out is not None:
+            from actors.checkpoint_parts import discard_incomplete, place_final_parts
+
+            place_final_parts(Path(ctx.out) / "checkpoints")
+            discard_incomplete(Path(ctx.out) / "checkpoints")  # only whole checkpoints stay
+        raise
     finally:
         signal.signal(signal.SIGTERM, previous)
         _reap_children()

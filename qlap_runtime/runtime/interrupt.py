@@ -12,7 +12,7 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["STOP_SIGNALS", "stop_on_signals"]
+__all__ = ["STOP_SIGNALS", "interrupt_on_signals", "stop_on_signals"]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """Ctrl-C, ``kill``, and the terminal closing."""
@@ -34,6 +34,23 @@ def stop_on_signals(signals: tuple[signal.Signals, ...] = STOP_SIGNALS
     previous = {s: signal.signal(s, handler) for s in signals}
     try:
         yield stop
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+@contextmanager
+def interrupt_on_signals(signals: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGHUP)
+                         ) -> Iterator[None]:
+    """While the block runs, SIGTERM and SIGHUP raise KeyboardInterrupt as Ctrl-C does, so that
+    the block's cleanup runs (a pool's worker processes stopped, not orphaned). Main thread
+    only."""
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, handler) for s in signals}
+    try:
+        yield
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
