@@ -669,8 +669,29 @@ def _cmd_run_inner(args: argparse.Namespace) -> int:
         world.close()
 
 
+def _port_problem(endpoint: str) -> str | None:
+    """Why a ``tcp/HOST:PORT`` endpoint cannot be listened on (its port taken), or None; found
+    before the run starts, not from the bus in the middle of it."""
+    import re
+    import socket
+
+    m = re.fullmatch(r"tcp/(\[?[^\]]*\]?|[^:]+):(\d+)", endpoint)
+    if m is None or m.group(2) == "0":
+        return None
+    host = m.group(1).strip("[]")
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+            s.bind((host, int(m.group(2))))
+    except OSError as exc:
+        return f"--listen {endpoint}: cannot listen there ({exc.strerror or exc})"
+    return None
+
+
 def _run_args_problem(args: argparse.Namespace, tui: bool, interactive: bool) -> str | None:
     """Why ``qlap run``'s flags do not go together (one line), or None."""
+    for endpoint in args.listen or ():
+        if (problem := _port_problem(endpoint)) is not None:
+            return problem
     if args.groups is not None and args.placement != "processes":
         return f"--groups {args.groups} goes with --placement processes"
     if (problem := lag_problem(args.lag)) is not None:
@@ -973,12 +994,17 @@ def _cmd_actor(args: argparse.Namespace) -> int:
 
     from .agent_run import params_for_world
     from .bus import keys
-    from .bus.cli import client_from_args, connect_failure
+    from .bus.cli import client_from_args
     from .bus.config import BusConfigError
     from .placements.launcher import run_actor
     from .qlap import Params
     from .runtime.context import RunContext
 
+    if args.credentials is not None:
+        print(f"qlap actor: --credentials {args.credentials}: a run's credentials name its "
+              "viewer, who may publish nothing; an actor connects as its own user (--user "
+              "NAME with $QLAP_PASSWORD, docs/security.md)", file=sys.stderr)
+        return 2
     world = _make_world(args.world, "actor")
     if world is None:
         return 2
@@ -1005,7 +1031,9 @@ def _cmd_actor(args: argparse.Namespace) -> int:
     try:
         result = run_actor(args.name, ctx, config)
     except zenoh.ZError as exc:
-        print(f"qlap actor: {connect_failure(args.connect, one_line(exc), args.credentials)}",
+        hint = "" if args.user else (" (a router with authentication needs the actor's own "
+                                     "user: --user NAME with $QLAP_PASSWORD)")
+        print(f"qlap actor: cannot connect to {', '.join(args.connect)}: {one_line(exc)}{hint}",
               file=sys.stderr)
         return 1
     except KeyboardInterrupt:

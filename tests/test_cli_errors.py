@@ -455,3 +455,20 @@ def test_resume_in_another_world_is_refused_before_the_run(capsys, tmp_path):
                         "--world", "pong", "--steps", "10", "--out", str(tmp_path / "b"))
     assert_one_line(code, err, "--resume", str(ck), "--world 'pong'")
     assert not (tmp_path / "b").exists()
+
+
+def test_listen_on_a_taken_port_is_refused_before_the_run(capsys, tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code, _, err = qlap(capsys, "run", "--headless", "--steps", "10", "--listen",
+                            f"tcp/127.0.0.1:{port}", "--out", str(tmp_path / "run"))
+    assert_one_line(code, err, f"--listen tcp/127.0.0.1:{port}", "cannot listen there")
+    assert not (tmp_path / "run").exists()
+
+
+def test_an_actor_refuses_a_runs_viewer_credentials(capsys, tmp_path):
+    code, _, err = qlap(capsys, "actor", "world", "--connect", "tcp/127.0.0.1:9", "--run", "r1",
+                        "--credentials", str(tmp_path / "bus-credentials.json"))
+    assert_one_line(code, err, "--credentials", "viewer", "--user NAME")
