@@ -85,8 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="registered world spec (e.g. core, core:floating, core2d, pong, "
                           "gym:Pendulum-v1) or package.module:Factory (default: core; with "
                           "--resume, the world the checkpoint records)")
-    run.add_argument("--steps", type=positive_int, default=30_000,
-                     help="agent steps to run (default: 30000)")
+    run.add_argument("--steps", type=positive_int, default=250_000,
+                     help="agent steps to run (default: 250000, the reference's exploration, "
+                          "§7.2: a few minutes here; in the terminal UI q quits at any time "
+                          "and keeps what was learned)")
     run.add_argument("--seed", type=count, default=None,
                      help="random seed (default: 0; with --resume, the checkpoint's, which a "
                           "different --seed cannot change)")
