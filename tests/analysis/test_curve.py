@@ -202,3 +202,23 @@ def test_cli_at_adds_steps_to_every(runs, tmp_path):
                        timeout=300)
     assert r.returncode == 0, r.stderr
     assert [r.step for r in read_rows(s1 / "curve.csv")] == [None, 1000, 3000]
+
+
+def test_sigterm_stops_the_workers_at_once(runs, tmp_path):
+    """`kill` of `qlap curve`: its worker processes are stopped with it (not orphaned, not
+    waited for); curve.csv keeps the evaluations that finished."""
+    import signal
+    import time
+
+    s1 = shutil.copytree(runs[0], tmp_path / "s1")
+    p = subprocess.Popen([sys.executable, "-m", "qlap_runtime.cli", "curve", str(s1), "--task",
+                          "move_block", "--trials", "100000", "--jobs", "2"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert p.stdout is not None
+    p.stdout.readline()                                   # the plan: the workers are starting
+    time.sleep(3)
+    t0 = time.monotonic()
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=60)
+    assert time.monotonic() - t0 < 20 and p.returncode == 130, err
+    assert "interrupted" in err
