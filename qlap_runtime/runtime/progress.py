@@ -32,8 +32,8 @@ def progress_bar(total: int) -> Any:
                    TextColumn("{task.fields[rate]:>7} steps/s"),
                    TextColumn("DBNs {task.fields[dbns]:>4}  plans {task.fields[plans]:>3}  "
                               "landmarks {task.fields[lms]:>3}"),
-                   TimeRemainingColumn(), transient=False)
-    bar.add_task("run", total=total, rate="-", dbns=0, plans=0, lms=0)
+                   TimeRemainingColumn(), TextColumn("{task.fields[state]}"), transient=False)
+    bar.add_task("run", total=total, rate="-", dbns=0, plans=0, lms=0, state="")
     return bar
 
 
@@ -70,7 +70,9 @@ async def watch_progress(session: Any, ctx: Any, stop: trio.Event, bar: Any = No
 
 def _show(bar: Any, task: Any, msg: Any, start: int) -> None:
     if isinstance(msg, AgentStatus):
-        bar.update(task, completed=max(0, msg.step - start), rate=f"{msg.steps_per_s:,.0f}")
+        bar.update(task, completed=max(0, msg.step - start), rate=f"{msg.steps_per_s:,.0f}",
+                   state="[yellow]paused (a viewer's control; resume it there)[/]"
+                   if msg.paused and not msg.finished else "")
     elif isinstance(msg, Knowledge):
         c = msg.counters
         # landmarks as summary.json and the metrics log count them: the initial ones included
