@@ -334,21 +334,15 @@ def test_metrics_log_is_the_same_in_the_sync_loop_embedded_actors_and_ui_driver(
 
     # The UI's local driver (lag 0, as `qlap run` in a terminal) against the sync loop.
     import worlds
-    from tui.driver import LocalDriver
+    from tests.local_driver import finished_driver
 
     sync_run(tmp_path / "sync0", 2500, seed=3)
     world = worlds.make(WORLD)
-    d = LocalDriver(world, seed=3, params=PARAMS, steps=2500, out=tmp_path / "ui",
-                    world_spec=WORLD)
     try:
-        d.start()
-        for _ in range(600):
-            if d.finished:
-                break
-            d.wait(0.1)
-        assert d.finished and d.error is None
+        with finished_driver(world, seed=3, params=PARAMS, steps=2500, out=tmp_path / "ui",
+                             world_spec=WORLD) as d:
+            assert d.finished and d.error is None
     finally:
-        d.stop()
         world.close()
     ui = metrics(tmp_path / "ui")
     assert [line["step"] for line in ui] == [1000, 2000, 2500]

@@ -103,22 +103,16 @@ def test_embedded_world_exception_keeps_what_was_learned(tmp_path):
 def test_ui_world_exception_keeps_what_was_learned(tmp_path):
     """The terminal UI's agent thread ends a broken world's run as the synchronous loop does:
     the outputs written, the same knowledge, and the failure shown (not a dead thread)."""
-    from tui.driver import LocalDriver
+    from tests.local_driver import finished_driver
 
     world = worlds.make(RAISING)
-    d = LocalDriver(world, seed=4, params=params_of(RAISING), steps=1200, out=tmp_path / "ui",
-                    world_spec=RAISING)
     try:
-        d.start()
-        for _ in range(600):
-            if d.finished:
-                break
-            d.wait(0.1)
-        assert d.finished and isinstance(d.error, WorldFailed)
-        assert d.error.step == badworld.RAISE_AT - 1
-        assert "failed at step" in d.runner.message
+        with finished_driver(world, seed=4, params=params_of(RAISING), steps=1200,
+                             out=tmp_path / "ui", world_spec=RAISING) as d:
+            assert d.finished and isinstance(d.error, WorldFailed)
+            assert d.error.step == badworld.RAISE_AT - 1
+            assert "failed at step" in d.runner.message
     finally:
-        d.stop()
         world.close()
     summary = outputs_written(tmp_path / "ui")
     assert summary["steps"] == badworld.RAISE_AT and "failed at step" in summary["world_error"]

@@ -32,18 +32,15 @@ def context(tmp_path, world_spec: str, params: Params, seed: int, run_id: str) -
 def run_local(ctx: RunContext) -> dict:
     """The terminal UI's local runner (``tui/driver.py``: the agent in a thread, obeying the
     same runner contract as the executor) over the run, writing its outputs to ``ctx.out``."""
-    from tui.driver import LocalDriver
+    from tests.local_driver import finished_driver
 
     world = worlds.make(ctx.world)
-    d = LocalDriver(world, seed=ctx.seed, params=ctx.params, steps=ctx.steps, out=ctx.out,
-                    run_id=ctx.run_id, world_spec=ctx.world)
     try:
-        d.start()
-        while not d.finished and d.error is None and d.alive:
-            d.wait(0.1)
-        assert d.finished and d.error is None
+        with finished_driver(world, timeout_s=600, seed=ctx.seed, params=ctx.params,
+                             steps=ctx.steps, out=ctx.out, run_id=ctx.run_id,
+                             world_spec=ctx.world) as d:
+            assert d.finished and d.error is None
     finally:
-        d.stop()
         world.close()
     return {"steps": d.steps_done, "rejected_messages": d.counter.snapshot().total}
 

@@ -65,10 +65,13 @@ def fill(fs: Path, leave: int = 0) -> int:
 
 
 class FillAt:
-    """A thread that fills ``fs`` once the run's metrics.jsonl reaches ``step``; ``at`` is
-    when it did (None before), :meth:`stop` ends it."""
+    """A thread that fills ``fs`` once the run's metrics.jsonl reaches ``step`` and the
+    checkpoint ``after`` (if given) is whole — it is written off the loop, and on a loaded
+    machine may still be in flight at ``step``; ``at`` is when it did (None before),
+    :meth:`stop` ends it."""
 
-    def __init__(self, fs: Path, out: Path, step: int, poll_s: float = 0.05) -> None:
+    def __init__(self, fs: Path, out: Path, step: int, poll_s: float = 0.05,
+                 after: Path | None = None) -> None:
         self.at: float | None = None
         self._stop = threading.Event()
 
@@ -78,7 +81,8 @@ class FillAt:
                     rows = (out / "metrics.jsonl").read_text().splitlines()
                 except OSError:
                     rows = []
-                if rows and json.loads(rows[-1]).get("step", 0) >= step:
+                whole = after is None or (after / "agent.json").is_file()
+                if rows and json.loads(rows[-1]).get("step", 0) >= step and whole:
                     fill(fs)
                     self.at = time.monotonic()
                 time.sleep(poll_s)
@@ -191,7 +195,8 @@ def test_a_disk_full_mid_run_leaves_only_whole_checkpoints_and_names_the_last(ti
     actor's part of a checkpoint whose agent was never written is removed), no temporary
     directory, and the kept checkpoint resumes."""
     out = tiny_fs / "run"
-    filler = FillAt(tiny_fs, out, 12_000, poll_s=0.02)
+    filler = FillAt(tiny_fs, out, 12_000, poll_s=0.02,
+                    after=out / "checkpoints" / "step-0010000")
     r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "run", "--headless",
                         "--quiet", "--placement", placement, "--world", "core", "--steps",
                         "40000", "--out", str(out)], capture_output=True, text=True,
