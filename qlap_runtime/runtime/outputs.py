@@ -27,10 +27,24 @@ class OutputError(CliError):
 
 def check_out(out: Path, min_free: int = MIN_FREE) -> None:
     """Create ``out`` if needed, write and remove a probe file (64 KiB, fsynced) and check
-    that ``min_free`` bytes are free there; :class:`OutputError` in one line otherwise."""
+    that ``min_free`` bytes are free there; :class:`OutputError` in one line otherwise. A
+    directory this check created is removed again when it refuses (no empty run left)."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputError(f"--out {out}: exists and is not a directory")
+    created = [p for p in (out, *out.parents) if not p.exists()]
+    try:
+        _probe(out, min_free)
+    except OutputError:
+        for d in created:                   # innermost first; only the empty ones it made
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def _probe(out: Path, min_free: int) -> None:
     probe = out / f".qlap-probe-{os.getpid()}"
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -98,7 +98,12 @@ class FillAt:
 def test_check_out_refuses_a_full_disk_and_a_file(tiny_fs, tmp_path):
     fill(tiny_fs, leave=8 * 2**20)
     with pytest.raises(OutputError, match=r"MB free, a run needs at least 32 MB"):
-        check_out(tiny_fs / "run")
+        check_out(tiny_fs / "runs" / "run")
+    assert not (tiny_fs / "runs").exists()            # the directories it made are gone
+    (tiny_fs / "mine").mkdir()
+    with pytest.raises(OutputError, match=r"MB free"):
+        check_out(tiny_fs / "mine")
+    assert (tiny_fs / "mine").is_dir()                 # one that was there stays
     check_out(tiny_fs / "run2", min_free=4 * 2**20)          # 8 MB left: enough for 4
     afile = tmp_path / "f"
     afile.write_text("")
