@@ -343,7 +343,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "worlds":
             return _cmd_worlds(args)
     except BrokenPipeError:               # `qlap … | head`: the reader left; nothing to say
-        _silence_stdout()
+        from .metrics import silence_stream
+
+        silence_stream(sys.stdout)
         return 141
     except KeyboardInterrupt:
         where = getattr(args, "run_dir", None)
@@ -360,18 +362,6 @@ def main(argv: list[str] | None = None) -> int:
         print(line, file=sys.stderr)
         return leaf.code if isinstance(leaf, CliError) else 1
     return 2
-
-
-def _silence_stdout() -> None:
-    """Point stdout at /dev/null so that the interpreter's flush at exit does not fail again on
-    the closed pipe (the idiom of the Python docs, "Note on SIGPIPE")."""
-    import os
-
-    try:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError, AttributeError):   # no file descriptor (a captured stream)
-        pass
 
 
 def _check_args(args: argparse.Namespace) -> None:
@@ -1181,12 +1171,6 @@ def _cmd_analysis(args: argparse.Namespace) -> int:
         print(main_report(args.runs, as_json=args.json))
     except (AnalysisError, OutputError) as exc:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)
-        return 2
-    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
-        if args.command == "curve":
-            raise
-        print(f"qlap report: {', '.join(map(str, args.runs))}: malformed knowledge "
-              f"({type(exc).__name__}: {exc})", file=sys.stderr)
         return 2
     return 0
 

@@ -222,7 +222,7 @@ class PlainProgress:
             print(text, file=stream, flush=True)
         except BrokenPipeError:
             self.closed = True
-            _silence(stream)
+            silence_stream(stream)
 
     def __call__(self, line: dict[str, Any]) -> None:
         with self._lock:
@@ -252,7 +252,7 @@ class PlainProgress:
                                     f"done in {_duration(wall)}"))
 
 
-def _silence(stream: TextIO) -> None:
+def silence_stream(stream: TextIO) -> None:
     """Point a closed pipe's file descriptor at /dev/null, so that later writes and the
     interpreter's flush at exit do not fail on it again (the Python docs' "Note on SIGPIPE")."""
     try:

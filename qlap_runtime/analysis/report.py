@@ -402,7 +402,18 @@ def _world_of(path: Path) -> str | None:
 
 def main_report(paths: Sequence[Path], as_json: bool = False) -> str:
     """``qlap report``: the figures of each run (a run or checkpoint directory) as text or
-    JSON (:func:`report_data`)."""
+    JSON (:func:`report_data`); knowledge that is not a run's (a wrong type, a missing field)
+    is an :class:`AnalysisError` naming the runs."""
+    try:
+        return _report_text(paths, as_json)
+    except AnalysisError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise AnalysisError(f"{', '.join(map(str, paths))}: malformed knowledge "
+                            f"({type(exc).__name__}: {exc})") from None
+
+
+def _report_text(paths: Sequence[Path], as_json: bool) -> str:
     data = report_data(paths)
     if as_json:
         return json.dumps(data, indent=1, ensure_ascii=False)
