@@ -46,13 +46,17 @@ HISTORY = 32
 
 _DOT = re.compile(r"\b(\w)(\w*)\.dot\b")
 _NEG_ZERO = re.compile(r"(?<![\w.])-(0(?:\.0*)?)(?![\w.])")
+_MINUS = re.compile(r"(?<![\w.])-(?=\.?\d)")
 
 
 def pretty(text: str) -> str:
     """The reference's notation: ``h_x.dot`` → ``ḣ_x``, ``+inf`` → ``+∞``, ``-inf`` → ``−∞``
-    (as ``qlap show``), and a zero is ``0``, never ``-0`` (a motor's initial landmark)."""
+    (as ``qlap show``), a negative number's sign the same minus as −∞'s (``-2.5`` → ``−2.5``;
+    a goal given so is read back, :meth:`~.qlap.agent.Agent.set_goal`), and a zero is ``0``,
+    never ``-0`` (a motor's initial landmark)."""
     text = _DOT.sub(lambda m: m.group(1) + "\u0307" + m.group(2), text)
     text = _NEG_ZERO.sub(r"\1", text)
+    text = _MINUS.sub("\u2212", text)
     return text.replace("+inf", "+∞").replace("-inf", "−∞")
 
 

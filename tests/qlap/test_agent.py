@@ -477,7 +477,8 @@ def test_a_goal_names_a_magnitude_value_by_label_number_or_index():
     x = agent.table.index("x")
     assert agent.learner.value_label(x, 0) == "(-inf, 5)"
     for text, q in [("(-inf, 5)", 0), ("(−∞, 5)", 0), ("[5]", 1), ("(5, +inf)", 2),
-                    ("(5,inf)", 2), ("(5, ∞)", 2), ("4.2", 0), ("5", 1), ("1e3", 2), ("#1", 1)]:
+                    ("(5,inf)", 2), ("(5, ∞)", 2), ("4.2", 0), ("5", 1), ("1e3", 2), ("#1", 1),
+                    ("\u22124.2", 0), ("\u22121e3", 0)]:    # qlap show's minus
         assert agent.set_goal("x", text) == (x, q), text
     assert agent.set_goal("x.dot", "+") == (agent.table.index("x.dot"), 2)
     with pytest.raises(ValueError, match=r"x has no value 'nan': .*\(-inf, 5\), 5, \(5, \+inf\)"):

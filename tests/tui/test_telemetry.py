@@ -82,11 +82,14 @@ def test_cadence_limits_display_rate_and_sends_knowledge_on_change():
             == "⟨{}: u_x→(0.3, +∞) ⇒ h\u0307_x→[+]⟩")
 
 
-def test_pretty_writes_infinity_and_zero_one_way():
+def test_pretty_writes_infinity_zero_and_minus_one_way():
     assert telemetry.pretty("(-inf, -0)") == "(−∞, 0)"
     assert telemetry.pretty("a(u_x, -0)") == "a(u_x, 0)"
-    assert telemetry.pretty("[-0.05, 0.05]") == "[-0.05, 0.05]"        # not a zero
-    assert telemetry.pretty("(1e-05, -0.5)") == "(1e-05, -0.5)"
+    assert telemetry.pretty("[-0.05, 0.05]") == "[\u22120.05, 0.05]"   # not a zero
+    assert telemetry.pretty("(1e-05, -0.5)") == "(1e-05, \u22120.5)"  # an exponent keeps "-"
+    assert telemetry.pretty("u_x→(-inf, -292.655)") == "u_x→(−∞, \u2212292.655)"
+    assert telemetry.pretty("h_x.dot→[-]") == "h\u0307_x→[-]"        # a change value's name
+    assert telemetry.pretty("x_RL-1") == "x_RL-1"
     assert telemetry.pretty("-0.000") == "0.000"
 
 
