@@ -393,7 +393,7 @@ class ModelLearner:
             # The sticky "sufficiently reliable" flags are refreshed as the batch's first op,
             # so that every replica refreshes at the same point (§4.2.2).
             self._do(Refresh())
-            self._learn_dbns(step)
+            self._learn_dbns()
             self._update_contexts()
             self._delete_dbns(step)
             out["dbn"] = Delta(delta_version(step, "dbn"), step, step + lag, tuple(ops))
@@ -456,7 +456,7 @@ class ModelLearner:
             return np.ones(n, dtype=bool)
         return self.perception.satisfied_fraction() < self.params.rare_event_fraction
 
-    def _learn_dbns(self, step: int) -> None:
+    def _learn_dbns(self) -> None:
         p = self.params
         index = self.perception.events
         if not self.k_learned:

@@ -60,7 +60,7 @@ class PlanCompilation:
         splits, self.learner.splits = self.learner.splits, []
         sizes = self._sizes()
         value_maps = compose_split_maps(splits, sizes) if splits else {}
-        cut = self._renumber_frames(splits, sizes)
+        cut = self._renumber_frames(splits)
         for var, split in splits:
             self.actions.on_landmark(var, split)
             if self.goal is not None and self.goal[0] == var and self.goal[1] > split:
@@ -194,7 +194,7 @@ class PlanCompilation:
         plan.context_o = ()
         plan.recount(self.learner.perception.quantize_columns, self._sizes())
 
-    def _renumber_frames(self, splits: list[tuple[int, int]], sizes: list[int]) -> int | None:
+    def _renumber_frames(self, splits: list[tuple[int, int]]) -> int | None:
         """Landmarks renumbered values (§4.4): shift the values the frames hold. A motor frame
         whose interval was split takes the part holding its commanded value; a frame whose goal
         interval was split has lost its meaning: the index of the first such frame, else None.
