@@ -16,13 +16,8 @@ import numpy as np
 import pytest
 
 from qlap_runtime.qlap import Params
-from qlap_runtime.qlap.checkpoint import (
-    CheckpointError,
-    _pack_rows,
-    _unpack_rows,
-    load_agent,
-    save_agent,
-)
+from qlap_runtime.qlap.checkpoint import CheckpointError, load_agent, save_agent
+from qlap_runtime.qlap.checkpoint.files import pack_rows, unpack_rows
 
 WORLD = "core2d"
 PARAMS = Params(babble_steps=1000)
@@ -221,9 +216,9 @@ def test_final_is_a_directory_when_it_differs_and_a_marker_where_links_fail(tmp_
 def test_rows_table_is_exact_for_nan_and_negative_zero():
     a = np.array([[0.0, -0.0, np.nan], [1.5, np.inf, -np.inf], [0.0, -0.0, np.nan]])
     b = np.array([[1.5, np.inf, -np.inf], [2.0, 3.0, 4.0]])
-    packed = _pack_rows({"a": a, "b": b, "c": np.arange(3)}, ["a", "b"])
+    packed = pack_rows({"a": a, "b": b, "c": np.arange(3)}, ["a", "b"])
     assert packed["_rows"].shape == (3, 3)                 # 5 rows, 3 distinct
-    back = _unpack_rows(dict(packed))
+    back = unpack_rows(dict(packed))
     assert back["a"].tobytes() == a.tobytes() and back["b"].tobytes() == b.tobytes()
     assert np.array_equal(back["c"], np.arange(3))
 
@@ -232,15 +227,16 @@ def _write_older(src: Path, dst: Path, version: int) -> None:
     """The checkpoint of ``src`` as an older writer left it. Version 1: every array in the npz
     under its own name, the plans' Q-tables in indented agent.json; version 2: compact, the
     Q-tables in agent.npz as they are, an npz entry per DBN or plan array."""
-    from qlap_runtime.qlap.checkpoint import _read_npz, _ungroup, _unpack_q
+    from qlap_runtime.qlap.checkpoint.agent_files import _unpack_q
+    from qlap_runtime.qlap.checkpoint.files import read_npz, ungroup_arrays
     from qlap_runtime.qlap.mdp import q_to_state
 
     dst.mkdir()
     for name in ("learner", "agent"):
         meta = json.loads((src / f"{name}.json").read_text())
-        arrays = _ungroup(_read_npz(src / f"{name}.npz"))
+        arrays = ungroup_arrays(read_npz(src / f"{name}.npz"))
         if version == 1:
-            arrays = _unpack_rows(arrays)
+            arrays = unpack_rows(arrays)
         meta["version"] = version
         if name == "agent":
             for plan in meta["plans"]:

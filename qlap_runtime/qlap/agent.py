@@ -416,7 +416,7 @@ class Agent(PlanCompilation, CallList):
     def to_state(self) -> dict[str, Any]:
         """As JSON, ``seen_applied``: the learner's ``applied_count`` when the plans last
         followed a batch (:meth:`decide`), and the plan deltas not yet applied. Every other
-        part of the agent's state is in public fields (``qlap_runtime/qlap/checkpoint.py``
+        part of the agent's state is in public fields (``qlap_runtime/qlap/checkpoint/``
         writes them); :meth:`load_state` is the inverse."""
         return {"seen_applied": self._seen_applied,
                 "pending_plans": [d.to_json() for d in self.pending_plans]}

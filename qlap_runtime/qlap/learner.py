@@ -1071,7 +1071,7 @@ class ModelLearner:
         for their window, in expiry order, as ``[expire_step, dbn_id, i]`` (``i``: the
         activation's index in the DBN's ``pending``); ``mag_active``, the active magnitude DBNs
         per variable as ``[var, [dbn_id, ...]]``. Every other part of the learner's state is in
-        public fields (``qlap_runtime/qlap/checkpoint.py`` writes them); :meth:`load_state` is
+        public fields (``qlap_runtime/qlap/checkpoint/`` writes them); :meth:`load_state` is
         the inverse."""
         pos = {d.id: {id(e): i for i, e in enumerate(d.pending)} for d in self.dbns.values()}
         return {"expiry": [[t, d.id, pos[d.id][id(e)]] for t, d, e in self._expiry

@@ -11,8 +11,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from qlap_runtime.qlap import checkpoint
-from qlap_runtime.qlap.checkpoint import ROWS, _read_npz, _write_npz
+from qlap_runtime.qlap.checkpoint import files as checkpoint_files
+from qlap_runtime.qlap.checkpoint.files import ROWS, read_npz, write_npz
 
 
 def npy_bytes(a: np.ndarray) -> bytes:
@@ -28,7 +28,7 @@ ARRAYS = {ROWS: np.linspace(-1.0, 1.0, 60_000).reshape(-1, 6),      # an xz entr
 
 def test_streamed_entries_are_the_arrays_deflated_or_xz_as_before(tmp_path):
     path = tmp_path / "a.npz"
-    _write_npz(path, ARRAYS)
+    write_npz(path, ARRAYS)
     with zipfile.ZipFile(path) as zf:
         infos = {i.filename: i for i in zf.infolist()}
         assert sorted(infos) == sorted(["_rows.npy.xz", "counts.npy", "empty.npy",
@@ -39,11 +39,11 @@ def test_streamed_entries_are_the_arrays_deflated_or_xz_as_before(tmp_path):
         assert infos["counts.npy"].compress_type == zipfile.ZIP_DEFLATED
         assert zf.read("counts.npy") == npy_bytes(ARRAYS["counts"])
         assert infos["counts.npy"].compress_size < infos["counts.npy"].file_size / 10
-    back = _read_npz(path)
+    back = read_npz(path)
     for key, a in ARRAYS.items():
         np.testing.assert_array_equal(back[key], a)
         assert back[key].dtype == a.dtype
-    _write_npz(tmp_path / "fast.npz", ARRAYS, fast=True)
+    write_npz(tmp_path / "fast.npz", ARRAYS, fast=True)
     with zipfile.ZipFile(tmp_path / "fast.npz") as zf:
         assert {i.compress_type for i in zf.infolist()} == {zipfile.ZIP_STORED}
         assert zf.read("_rows.npy") == npy_bytes(ARRAYS[ROWS])
@@ -52,7 +52,7 @@ def test_streamed_entries_are_the_arrays_deflated_or_xz_as_before(tmp_path):
 def test_a_write_that_fails_midway_leaves_the_old_file_and_no_temporary(tmp_path,
                                                                         monkeypatch):
     path = tmp_path / "a.npz"
-    _write_npz(path, {"old": np.arange(3)})
+    write_npz(path, {"old": np.arange(3)})
     before = path.read_bytes()
     real = np.lib.format.write_array
     calls = []
@@ -63,8 +63,8 @@ def test_a_write_that_fails_midway_leaves_the_old_file_and_no_temporary(tmp_path
             raise OSError(errno.ENOSPC, "No space left on device")
         return real(fp, array, **kw)
 
-    monkeypatch.setattr(checkpoint.np.lib.format, "write_array", full_disk)
+    monkeypatch.setattr(checkpoint_files.np.lib.format, "write_array", full_disk)
     with pytest.raises(OSError, match="No space left"):
-        _write_npz(path, ARRAYS)
+        write_npz(path, ARRAYS)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]
