@@ -2,7 +2,7 @@
 
 The other UI tests drive :class:`~tui.QlapApp` with Textual's pilot on a driver they build
 themselves; this one runs the ``qlap`` command (no ``--headless``, no placement, no
-``--babble-steps``) on a pseudo-terminal, so that the command line, ``_run_tui``, the agent
+``--babble-steps``) on a pseudo-terminal, so that the command line, ``run_tui``, the agent
 process (spawn) and the UI are all exercised together: it waits until the panels show the
 agent stepping, presses ``q`` and expects a clean exit.
 """
