@@ -12,7 +12,7 @@ after it (§5.2.2), and the statistics rel(a) and rel(o) recorded when an action
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,6 +23,14 @@ from .mdp import Role, greedy_action, sarsa_reward
 from .perception import Percept
 from .planner import Plan
 from .variables import Kind
+
+if TYPE_CHECKING:
+    from .actions import ActionTable
+    from .agent import AgentCounters
+    from .learner import ModelLearner
+    from .params import Params
+    from .planner import PlanGroups
+    from .variables import VariableTable
 
 RUN, SUCCESS, FAIL = "run", "success", "fail"
 CHANGE_ZERO = 1
@@ -78,6 +86,24 @@ class Frame:
 
 class CallList:
     """Algorithms 6 and 7 on the agent's call list (a mixin of :class:`~.agent.Agent`)."""
+
+    if TYPE_CHECKING:   # the agent's fields and methods this part uses (Agent's __init__)
+        actions: ActionTable
+        call_list: list[Frame]
+        counters: AgentCounters
+        learner: ModelLearner
+        learning: bool
+        motor: dict[str, float]
+        params: Params
+        plans: dict[int, Plan]
+        rng: np.random.Generator
+        self_vars: set[int]
+        table: VariableTable
+        _trial_saved: dict[int, tuple[np.ndarray, np.ndarray]]
+
+        def _plan_groups(self) -> PlanGroups: ...
+        def _refresh(self, plan: Plan) -> None: ...
+        def _usable(self, var: int, value: int) -> bool: ...
 
     # ------------------------------------------------------------------------------------------
     # the call list (Algorithms 6 and 7)

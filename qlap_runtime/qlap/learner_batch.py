@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import copy
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -42,7 +42,11 @@ from .quantity import Landmark, QuantitySpace
 from .variables import Event, Kind
 
 if TYPE_CHECKING:
+    from .contingency import PairStatistics, WindowLearner
     from .learner import ModelLearner
+    from .params import Params
+    from .perception import Perception
+    from .variables import Event, VariableTable
 
 CHANGE_MINUS, CHANGE_PLUS = 0, 2
 
@@ -53,6 +57,27 @@ _TOL = 1e-9
 
 class BatchLearning:
     """Algorithm 2 lines 6–13 on the learner (a mixin of :class:`~.learner.ModelLearner`)."""
+
+    if TYPE_CHECKING:   # the learner's fields and methods this part uses (ModelLearner's __init__)
+        applied: list[dict]
+        applied_count: int
+        dbns: dict[int, DBN]
+        k_learned: bool
+        pairs: PairStatistics
+        params: Params
+        pending_deltas: deque[Delta]
+        perception: Perception
+        reliable_actions: set[tuple[int, int]]
+        step: int
+        table: VariableTable
+        version: int
+        window: WindowLearner
+        _batch_work: ModelLearner | None
+        _dot_of: dict[int, int]
+        _pairs_of: set[tuple[Event, Event]]
+
+        def _apply_op(self, op: Op) -> None: ...
+        def _size(self, var: int) -> int: ...
 
     # ------------------------------------------------------------------------------------------
     # batches (Algorithm 2 lines 6–13)
@@ -135,7 +160,7 @@ class BatchLearning:
         memo: dict[int, Any] = {id(self.pending_deltas): deque()}
         work, self._batch_work = self._batch_work, None     # never part of a copy
         try:
-            return copy.deepcopy(self, memo)
+            return cast("ModelLearner", copy.deepcopy(self, memo))
         finally:
             self._batch_work = work
 

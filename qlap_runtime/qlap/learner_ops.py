@@ -10,6 +10,7 @@ statistics follow it.
 from __future__ import annotations
 
 from collections import deque
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,11 +21,35 @@ from .perception import EventIndex
 from .quantity import Landmark
 from .variables import Event, Kind
 
+if TYPE_CHECKING:
+    from collections import deque
+
+    from .contingency import PairStatistics, WindowLearner
+    from .params import Params
+    from .perception import Perception
+    from .variables import VariableTable
+
 CHANGE_MINUS, CHANGE_PLUS = 0, 2
 
 
 class KnowledgeOps:
     """Operations on the learner's knowledge (a mixin of :class:`~.learner.ModelLearner`)."""
+
+    if TYPE_CHECKING:   # the learner's fields and methods this part uses (ModelLearner's __init__)
+        dbns: dict[int, DBN]
+        next_id: int
+        pairs: PairStatistics
+        params: Params
+        perception: Perception
+        splits: list[tuple[int, int]]
+        step: int
+        table: VariableTable
+        window: WindowLearner
+        _expiry: deque[tuple[int, DBN, list]]
+        _mag_active: dict[int, list[DBN]]
+
+        def _refresh_reliability(self) -> None: ...
+        def _size(self, var: int) -> int: ...
 
     # ------------------------------------------------------------------------------------------
     # indexes

@@ -3,12 +3,13 @@
 :class:`PlanCompilation` is the part of :class:`~.agent.Agent` that follows a batch: plans
 whose DBN disappeared are removed, the others follow their DBN's structure and new landmarks
 (§4.4), second-order contexts are found (§5.4), DBNs become plans under the developmental
-restrictions (§6.2: sufficiently reliable, NRP, the plan slots of §6.2.2), every plan's MDP is
-rebuilt with value iteration where it has no learned values (§5.2–5.3), and self is updated
-(§6.4). A compilation runs on a planning copy (:meth:`PlanCompilation.planning_copy`) and
-returns a :class:`~.plan_delta.PlanDelta` applied at t + L (:meth:`PlanCompilation.apply_plans`;
-the planner actor computes the same, docs/decisions.md 56). It works on the agent's fields
-(``plans``, ``actions``, ``learner``, ``params``, ``call_list``, ``goal``).
+restrictions (§6.2: sufficiently reliable, NRP, the plan slots of §6.2.2) and targeted
+learning (§6.3), every plan's MDP is rebuilt with value iteration where it has no learned
+values (§5.2–5.3), and self is updated (§6.4). A compilation runs on a planning copy
+(:meth:`PlanCompilation.planning_copy`) and returns a :class:`~.plan_delta.PlanDelta` applied
+at t + L (:meth:`PlanCompilation.apply_plans`; the planner actor computes the same,
+docs/decisions.md 56). It works on the agent's fields (``plans``, ``actions``, ``learner``,
+``params``, ``call_list``, ``goal``).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import copy
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -41,11 +42,35 @@ from .probability import prob_above, success_probability
 from .variables import Kind
 
 if TYPE_CHECKING:
-    from .agent import Agent
+    from .actions import ActionKey, ActionTable
+    from .agent import Agent, AgentCounters
+    from .call_list import Frame
+    from .params import Params
+    from .plan_delta import PlanOp
+    from .planner import ModelMemo
+    from .variables import VariableTable
 
 
 class PlanCompilation:
     """Line 15 of Algorithm 2 on the agent's plans (a mixin of :class:`~.agent.Agent`)."""
+
+    if TYPE_CHECKING:   # the agent's fields and methods this part uses (Agent's __init__)
+        actions: ActionTable
+        call_list: list[Frame]
+        counters: AgentCounters
+        goal: ActionKey | None
+        learner: ModelLearner
+        mode: str
+        model_memo: ModelMemo | None
+        next_plan_id: int
+        motor: dict[str, float]
+        params: Params
+        pending_plans: deque[PlanDelta]
+        plans: dict[int, Plan]
+        table: VariableTable
+        _compiling: list[PlanOp] | None
+
+        def _plans_changed(self) -> None: ...
 
     # ------------------------------------------------------------------------------------------
     # knowledge changes: line 15 of Algorithm 2 and the consequences of new landmarks
@@ -76,7 +101,7 @@ class PlanCompilation:
         :meth:`compile_plans`. A compilation replaces a plan's arrays rather than writing into
         them, so the copies share them, unless ``deep`` (a compilation while this agent goes
         on, in another thread); the call list stays the executor's."""
-        c = copy.copy(self)
+        c = cast("Agent", copy.copy(self))
         c.learner = learner
         memo = {id(self.params): self.params, id(self.table): self.table, id(self): c,
                 id(self.learner): learner}

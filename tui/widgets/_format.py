@@ -59,7 +59,8 @@ def signed(x: float, digits: int = 2) -> str:
 
 def label(text: str) -> str:
     """A variable, value or action label in the reference's notation (``z_F.dot`` → ``ż_F``,
-    ``-inf`` → ``−∞``, ``-0`` → ``0``), as the telemetry writes the action and plan labels."""
+    ``-inf`` → ``−∞``, ``-2.5`` → ``−2.5``, ``-0`` → ``0``), as the telemetry writes the action
+    and plan labels."""
     return pretty(text)
 
 

@@ -6,7 +6,8 @@ A checkpoint is a directory holding ``<name>.json`` (structure, small values, co
 raises :class:`CheckpointError` with the path and the reason. Schema: ``docs/checkpoint.md``.
 
 * :mod:`.files` — atomic files, the npz encoding, what a path stands for;
-* :mod:`.learner_files` — the model learner (``learner.json``/``.npz``, ``stats.*``), checked;
+* :mod:`.learner_files` — the model learner (``learner.json``/``.npz``, ``stats.*``), and the
+  field checks of both files (``check_learner``, ``check_agent``);
 * :mod:`.agent_files` — the whole agent (``agent.json``/``.npz``) on top of the learner's;
 * :mod:`.run_dirs` — a run's ``step-N`` checkpoints, retention, ``final`` and the world's state.
 
