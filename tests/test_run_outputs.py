@@ -514,18 +514,66 @@ def test_a_signal_stops_a_run_between_two_steps_with_its_outputs(tmp_path, place
 
 
 @pytest.mark.parametrize("placement", ["sync", "embedded"])
-def test_a_reader_that_leaves_stops_the_printing_not_the_run(tmp_path, placement):
-    """`qlap run … | head -2`: the progress lines stop when the pipe closes; the run goes on
-    to its last step and writes its outputs."""
+def test_an_ignored_hangup_stays_ignored(tmp_path, placement):
+    """`nohup qlap run …`: SIGHUP ignored when the run starts stays ignored (the terminal may
+    close); SIGTERM still stops it between two steps with its outputs."""
+    import signal
+    import time
+
     out = tmp_path / "run"
     qlap = str(Path(sys.executable).parent / "qlap")
     p = subprocess.Popen([qlap, "run", "--headless", "--placement", placement, "--world", WORLD,
-                          "--steps", "12000", "--out", str(out)],
+                          "--steps", "1000000", "--out", str(out), "--quiet"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "metrics.jsonl").is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        p.send_signal(signal.SIGHUP)
+        time.sleep(2)
+        assert p.poll() is None, p.communicate()[1]
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=120)
+    finally:
+        p.kill()
+    assert p.returncode == 130, err
+    assert (out / "checkpoints" / "final" / "agent.json").is_file()
+
+
+def test_only_the_signals_not_ignored_are_heeded():
+    import signal
+
+    from qlap_runtime.runtime.interrupt import heeded, stop_on_signals
+
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        assert heeded((signal.SIGINT, signal.SIGHUP)) == (signal.SIGINT,)
+        with stop_on_signals((signal.SIGINT, signal.SIGHUP)):
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            assert callable(signal.getsignal(signal.SIGINT))
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+
+
+@pytest.mark.parametrize(("placement", "quiet"), [("sync", False), ("embedded", False),
+                                                  ("sync", True), ("embedded", True)])
+def test_a_reader_that_leaves_stops_the_printing_not_the_run(tmp_path, placement, quiet):
+    """`qlap run … | head -1`: the progress lines (or, with --quiet, the report at the end)
+    stop when the pipe closes; the run goes on to its last step, writes its outputs and does
+    not call itself failed."""
+    out = tmp_path / "run"
+    qlap = str(Path(sys.executable).parent / "qlap")
+    p = subprocess.Popen([qlap, "run", "--headless", "--placement", placement, "--world", WORLD,
+                          "--steps", "12000", "--out", str(out)] + (["--quiet"] if quiet else []),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     assert p.stdout is not None
     p.stdout.readline()
     p.stdout.close()                                     # the reader leaves
     _, err = p.communicate(timeout=300)
     assert p.returncode in (0, 141), err.decode()
+    assert "Broken pipe" not in err.decode() and "no checkpoint" not in err.decode()
     assert json.loads((out / "summary.json").read_text())["steps"] == 12000
     assert (out / "checkpoints" / "final").exists()
+    assert (out / "metrics.png").is_file()

@@ -98,3 +98,14 @@ def world_mismatch(checkpoint: Path, world: Any, spec: str) -> str | None:
     return (f"{checkpoint} was learned in {where}, not --world {spec!r}"
             + (f" (which has no {', '.join(missing[:3])}{', …' if len(missing) > 3 else ''})"
                if missing else " (its variables differ)"))
+
+
+def say(*values: object) -> None:
+    """``print`` to stdout for a run's report: a reader that left (``qlap run … | head``)
+    silences the rest instead of failing a run that has its outputs to write."""
+    try:
+        print(*values, flush=True)
+    except BrokenPipeError:
+        from ..metrics import silence_stream
+
+        silence_stream(sys.stdout)

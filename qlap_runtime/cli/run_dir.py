@@ -11,6 +11,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from .common import say
+
 
 def default_run_dir(world: str, seed: int, root: Path = Path("runs")) -> Path:
     """``runs/<world>-<YYYYmmdd-HHMMSS>-s<seed>``, the world spec made a file name; ``-2``,
@@ -80,7 +82,7 @@ def prepare_out(args: argparse.Namespace) -> Path | None:
         print(f"qlap run: {exc}", file=sys.stderr)
         return None
     args.run_dir = out
-    print(f"run directory: {out}", flush=True)
+    say(f"run directory: {out}")
     return out
 
 
@@ -106,5 +108,5 @@ def print_written(out: Path) -> None:
 
     picture = plot_run_if_possible(out)
     drawn = f", {picture.name}" if picture is not None else ""
-    print(f"\nwrote {out}/: knowledge.json, summary.json, metrics.jsonl{drawn}, checkpoints/ "
+    say(f"\nwrote {out}/: knowledge.json, summary.json, metrics.jsonl{drawn}, checkpoints/ "
           f"(qlap plot {out} draws them again, with a learning curve after qlap curve)")

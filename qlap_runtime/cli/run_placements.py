@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .common import say
 from .run_dir import kept_checkpoint, prepare_out, print_written, resume_clash
 
 
@@ -81,16 +82,16 @@ def run_sync(args: argparse.Namespace, world: Any, params: Any) -> int:
             bar.stop()
     if plain is not None:
         plain.final(summary)
-    print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
+    say(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
           f"({summary['steps_per_s']} steps/s); k = {summary['k']}, {summary['dbns']} DBNs, "
           f"{summary['plans']} plans, {summary['landmarks']} landmarks, "
           f"{summary['reliable_actions']} sufficiently reliable actions")
     if summary["rejected_observations"]:
-        print(f"rejected observations: {summary['rejected_observations']} "
+        say(f"rejected observations: {summary['rejected_observations']} "
               f"(first: {summary['rejected_examples'][0]})")
     from ..analysis.show import format_knowledge
 
-    print(format_knowledge(agent.knowledge(), limit=25))
+    say(format_knowledge(agent.knowledge(), limit=25))
     print_written(out)
     if "interrupted_at" in summary:
         print(f"qlap run: interrupted before step {summary['interrupted_at']}; what was "
@@ -240,19 +241,19 @@ def run_actors(args: argparse.Namespace, world, params) -> int:
     if plain is not None:
         plain.final(summary)
     knowledge = json.loads((out / "knowledge.json").read_text())
-    print(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
+    say(f"\n{summary['steps']} steps in {summary['wall_time_s']} s "
           f"({summary['steps_per_s']} steps/s); k = {summary.get('k')}, "
           f"{summary.get('dbns')} DBNs, {summary.get('plans')} plans, "
           f"{summary.get('landmarks')} landmarks, {summary.get('reliable_actions')} "
           f"sufficiently reliable actions; waits {summary['waits']}, rejected messages "
           f"{summary['rejected_messages']}, restarts {summary.get('restarts', 0)}")
     if args.clock == "realtime":
-        print(f"realtime {summary.get('hz')} Hz: late ticks {summary.get('late_ticks')}, "
+        say(f"realtime {summary.get('hz')} Hz: late ticks {summary.get('late_ticks')}, "
               f"missed ticks {summary.get('missed_ticks')}, lateness p50 "
               f"{summary.get('lateness_p50_ms')} ms, p99 {summary.get('lateness_p99_ms')} ms")
     from ..analysis.show import format_knowledge
 
-    print(format_knowledge(knowledge, limit=25))
+    say(format_knowledge(knowledge, limit=25))
     print_written(out)
     if signalled:
         final = out / "checkpoints" / "final"

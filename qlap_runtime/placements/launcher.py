@@ -30,6 +30,7 @@ from ..bus.bridge import AliveWatcher
 from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
 from ..qlap.kernels import warm_kernels
+from ..runtime.interrupt import heeded
 from ..runtime.outputs import check_out
 from ..runtime.supervisor import Supervisor, group_name
 from .groups import ACTORS, DEFAULT_GROUPS, LEARNERS, Layout, parse_groups
@@ -183,7 +184,10 @@ def quit_on_signals(fired: list[int]) -> Callable[..., Any]:
     from ..bus.schema import Control, encode
 
     async def watch(session: Any, ctx: Any, stop: trio.Event) -> None:
-        with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as sigs:
+        signals = heeded((signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
+        if not signals:                     # every one ignored (nohup and a background job)
+            return
+        with trio.open_signal_receiver(*signals) as sigs:
             async with trio.open_nursery() as nursery:
                 async def until_done() -> None:
                     await stop.wait()
@@ -579,7 +583,10 @@ def run_actor(name: str, ctx: Any, config: zenoh.Config) -> dict[str, Any]:
     ctx = ctx.with_(placement=ctx.placement or "distributed")
 
     async def until_signal(cancel: trio.CancelScope) -> None:
-        with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+        heard = heeded((signal.SIGINT, signal.SIGTERM))
+        if not heard:
+            return
+        with trio.open_signal_receiver(*heard) as signals:
             async for _ in signals:
                 cancel.cancel()
                 return

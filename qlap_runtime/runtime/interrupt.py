@@ -2,7 +2,9 @@
 
 A run told to stop by a signal ends the way it ends after its last step: the outputs of what
 was learned are written (knowledge.json, summary.json, checkpoints/final), so that it can go on
-with ``--resume``. A second Ctrl-C interrupts at once, for a run that does not stop.
+with ``--resume``. A second Ctrl-C interrupts at once, for a run that does not stop. A signal
+that is ignored when the run starts stays ignored (:func:`heeded`): ``nohup``'s SIGHUP, a
+background job's SIGINT.
 """
 
 from __future__ import annotations
@@ -12,10 +14,17 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["STOP_SIGNALS", "interrupt_on_signals", "stop_on_signals"]
+__all__ = ["STOP_SIGNALS", "heeded", "interrupt_on_signals", "stop_on_signals"]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """Ctrl-C, ``kill``, and the terminal closing."""
+
+
+def heeded(signals: tuple[signal.Signals, ...]) -> tuple[signal.Signals, ...]:
+    """The ``signals`` not ignored now: a process started under ``nohup`` (SIGHUP ignored) or as
+    a shell's background job (SIGINT ignored) keeps them ignored, as programs do by convention
+    (Python itself installs its Ctrl-C handler only where SIGINT is not ignored)."""
+    return tuple(s for s in signals if signal.getsignal(s) is not signal.SIG_IGN)
 
 
 @contextmanager
@@ -31,7 +40,7 @@ def stop_on_signals(signals: tuple[signal.Signals, ...] = STOP_SIGNALS
             raise KeyboardInterrupt
         stop.set()
 
-    previous = {s: signal.signal(s, handler) for s in signals}
+    previous = {s: signal.signal(s, handler) for s in heeded(signals)}
     try:
         yield stop
     finally:
@@ -48,7 +57,7 @@ def interrupt_on_signals(signals: tuple[signal.Signals, ...] = (signal.SIGTERM, 
     def handler(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
-    previous = {s: signal.signal(s, handler) for s in signals}
+    previous = {s: signal.signal(s, handler) for s in heeded(signals)}
     try:
         yield
     finally:
