@@ -15,7 +15,7 @@ def format_knowledge(k: dict, show_all: bool = False, limit: int | None = None) 
     for name, lms in k["landmarks"].items():
         learned = [m["label"] for m in lms if m["source"] != "initial"]
         if learned:
-            lines.append(f"  {pretty(name):10s} {', '.join(learned)}")
+            lines.append(f"  {pretty(name):10s} {', '.join(pretty(lm) for lm in learned)}")
     if len(lines) == n_lines:
         lines.append("  none yet")
     dbns = {d["id"]: d for d in k["dbns"]}
