@@ -46,22 +46,26 @@ def _running_mean(ys: Sequence[float], window: int) -> list[float]:
 
 
 def _curve_groups(path: Path) -> list[tuple[str, list[Any], Any]]:
-    """(label, checkpoint rows by step, random row or None) per task/world/trials/seed."""
+    """(label, checkpoint rows by step, random row or None) per task/world/trials/seed and run:
+    a curve.csv of several runs (``qlap curve RUN RUN … --out DIR``) gives a line per run,
+    the random policy drawn once per task."""
     from .curve import RANDOM_RUN, read_rows
 
     rows = read_rows(path)
     groups: dict[tuple, dict[str, Any]] = {}
     for r in rows:
-        g = groups.setdefault((r.task, r.world, r.trials, r.seed), {"qlap": [], "random": None})
+        g = groups.setdefault((r.task, r.world, r.trials, r.seed), {"runs": {}, "random": None})
         if r.policy == "random" or r.run == RANDOM_RUN:
             g["random"] = r
         elif r.step is not None:
-            g["qlap"].append(r)
+            g["runs"].setdefault(r.run, []).append(r)
     out = []
     for (task, world, trials, seed), g in sorted(groups.items()):
-        if g["qlap"]:
-            label = f"{task} ({world}, {trials} trials, seed {seed})"
-            out.append((label, sorted(g["qlap"], key=lambda r: r.step), g["random"]))
+        label = f"{task} ({world}, {trials} trials, seed {seed})"
+        for i, (run, qlap) in enumerate(sorted(g["runs"].items())):
+            named = f"{label}, {run}" if len(g["runs"]) > 1 else label
+            out.append((named, sorted(qlap, key=lambda r: r.step),
+                        g["random"] if i == 0 else None))
     return out
 
 
