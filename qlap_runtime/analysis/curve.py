@@ -291,9 +291,14 @@ def _collect(run_dirs: list[Path], labels: list[str],
     checkpoints: list[Checkpoint] = []
     specs = set()
     for run_dir, label in zip(run_dirs, labels, strict=True):
+        if run_dir.is_file():
+            raise AnalysisError(f"{run_dir}: a file, not a run directory")
         if not run_dir.is_dir():
             raise AnalysisError(f"{run_dir}: no such run directory")
         found = find_checkpoints(run_dir, label)
+        if not found and (run_dir / "agent.json").is_file():
+            raise AnalysisError(f"{run_dir} is a checkpoint, not a run directory: give the run "
+                                f"that holds it ({run_dir.resolve().parent.parent})")
         if not found:
             raise AnalysisError(f"{run_dir}: no agent checkpoints under checkpoints/")
         specs.add(run_world(run_dir, found, world))

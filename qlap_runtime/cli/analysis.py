@@ -15,6 +15,7 @@ def cmd_analysis(args: argparse.Namespace) -> int:
     from ..analysis.report import main_report
     from ..runtime.outputs import OutputError, check_out
 
+    made = args.command == "curve" and args.out is not None and not args.out.exists()
     try:
         if args.command == "curve" and args.out is not None:
             check_out(args.out, min_free=2**20)     # before the evaluations, not after
@@ -28,6 +29,8 @@ def cmd_analysis(args: argparse.Namespace) -> int:
         print(main_report(args.runs, as_json=args.json))
     except (AnalysisError, OutputError) as exc:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)
+        if made and args.out.is_dir() and not any(args.out.iterdir()):
+            args.out.rmdir()                        # a refused curve leaves no empty --out
         return 2
     return 0
 

@@ -138,6 +138,22 @@ def test_curve_errors(runs, tmp_path):
         main_curve([runs[0]], "pickup", trials=2, out=tmp_path, echo=lambda s: None)
     with pytest.raises(AnalysisError, match="no agent checkpoints"):
         main_curve([tmp_path], "move_block", trials=2, echo=lambda s: None)
+    final = runs[0] / "checkpoints" / "final"
+    with pytest.raises(AnalysisError, match=r"is a checkpoint, not a run directory: give the "
+                                            rf"run that holds it \({runs[0].resolve()}\)"):
+        main_curve([final], "move_block", trials=2, echo=lambda s: None)
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(AnalysisError, match="afile: a file, not a run directory"):
+        main_curve([tmp_path / "afile"], "move_block", trials=2, echo=lambda s: None)
+
+
+def test_a_refused_curve_leaves_no_out_directory(runs, tmp_path):
+    out = tmp_path / "new" / "curve"
+    r = subprocess.run([sys.executable, "-m", "qlap_runtime.cli", "curve", str(runs[0]),
+                        "--task", "pickup", "--out", str(out)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2 and "no task 'pickup'" in r.stderr
+    assert not out.exists()
 
 
 def test_cli_hook(runs):
