@@ -100,3 +100,19 @@ def test_load_world_state_names_the_file(tmp_path) -> None:
     (tmp_path / "world.json").write_text("[1, 2]")
     with pytest.raises(CheckpointError, match="world.json: not a qlap-world-state"):
         load_world_state(tmp_path)
+
+
+def test_a_missing_stats_part_names_the_realtime_clock(tmp_path):
+    """The refusal of a checkpoint without pair statistics says why it has none: a run under
+    the realtime clock keeps none (the usual case), else the part was lost."""
+    import json
+
+    from qlap_runtime.placements.resume import _stats_gone
+
+    ckpt = tmp_path / "run" / "checkpoints" / "final"
+    ckpt.mkdir(parents=True)
+    assert _stats_gone(ckpt) == "an actor placement's checkpoint without its stats part"
+    (tmp_path / "run" / "summary.json").write_text(json.dumps({"clock": "realtime"}))
+    assert _stats_gone(ckpt) == "a run under --clock realtime, whose learners keep none"
+    (tmp_path / "run" / "summary.json").write_text("[")
+    assert _stats_gone(ckpt) == "an actor placement's checkpoint without its stats part"

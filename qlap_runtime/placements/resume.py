@@ -58,6 +58,20 @@ def in_flight_problem(checkpoint: Path, params, step: int, placement: str) -> st
     return None
 
 
+def _stats_gone(ckpt: Path) -> str:
+    """Why an actor placement's checkpoint has no ``stats`` part: its run's clock was realtime
+    (the learners keep none under it), or the part was lost."""
+    import json
+
+    try:
+        summary = json.loads((ckpt.parent.parent / "summary.json").read_text())
+    except (OSError, ValueError):
+        summary = {}
+    if isinstance(summary, dict) and summary.get("clock") == "realtime":
+        return "a run under --clock realtime, whose learners keep none"
+    return "an actor placement's checkpoint without its stats part"
+
+
 def resume_context(ctx: RunContext, checkpoint: Path) -> RunContext:
     """``ctx`` started from ``checkpoint``: its parameters, its step, the checkpoint named
     for the actors (:mod:`actors.resume`). Raises :class:`ResumeRefused` or
@@ -69,9 +83,9 @@ def resume_context(ctx: RunContext, checkpoint: Path) -> RunContext:
     ckpt = resolve_checkpoint(Path(checkpoint)).resolve()
     agent = load_agent(ckpt)
     if statistics_missing(ckpt):
-        raise ResumeRefused(f"{ckpt}: the learner has no pair statistics (an actor "
-                            "placement's checkpoint without its stats part): no placement "
-                            "resumes it exactly; --placement sync runs it inexactly")
+        raise ResumeRefused(f"{ckpt}: the learner has no pair statistics ({_stats_gone(ckpt)}): "
+                            "no placement resumes it exactly; --placement sync runs it "
+                            "inexactly")
     if load_world_state(ckpt) is None:
         raise ResumeRefused(f"{ckpt}: the checkpoint holds no world state: the actor "
                             "placements resume only exactly; --placement sync restarts the "
