@@ -63,6 +63,12 @@ CASES = {
     "learning": ("agent.json", lambda m: m.update(learning="x")),
     "mode": ("agent.json", lambda m: m.update(mode="dance")),
     "variables": ("learner.json", lambda m: m.update(variables="x")),
+    # fields read without a check of their own: the error names the part being read
+    "actions": ("agent.json", lambda m: m.update(actions=["x"])),
+    "babbler": ("agent.json", lambda m: m.update(babbler=[])),
+    "call_list": ("agent.json", lambda m: m.update(call_list=[{"key": 1}])),
+    "iac_log": ("agent.json", lambda m: m.update(iac_log=[[]])),
+    "counters": ("agent.json", lambda m: m.update(counters={"nope": 1})),
 }
 
 

@@ -149,13 +149,17 @@ def load_agent(directory: str | Path) -> Any:
                               f"not supported (this build reads versions "
                               f"{', '.join(map(str, AGENT_READABLE_VERSIONS))})")
     check_agent(meta, learner, jpath)
+    part = "seed_state"                             # the field being read, for the error
     try:
         agent = Agent(learner.table, learner.params)
         agent.learner = learner
         agent.rng.bit_generator.state = meta["seed_state"]
         agent.seed = meta.get("seed")              # older checkpoints: not recorded
+        part = "babbler"
         agent.babbler.load_state(meta["babbler"])
+        part = "actions"
         agent.actions = ActionTable.from_json(meta["actions"], learner.params)
+        part = "plans"
         for d in meta["plans"]:
             dbn = learner.dbns[int(d["dbn_id"])]
             pl = Plan(int(d["id"]), dbn, learner.table, learner.params, int(d["created"]),
@@ -182,23 +186,30 @@ def load_agent(directory: str | Path) -> Any:
             traces = arrays[f"plan.{pid}.traces"]
             pl.sarsa = SarsaLambda(pl.q, learner.params,
                                    traces.astype(float) if traces.size else None)
+        part = "next_plan_id"
         agent.next_plan_id = int(meta["next_plan_id"])
+        part = "call_list"
         agent.call_list = [Frame.from_json(f) for f in meta["call_list"]]
+        part = "motor"
         agent.motor = {k: float(v) for k, v in meta["motor"].items()}
+        part = "mode, hold_until, goal, goal_idle or learning"
         agent.mode, agent.hold_until = meta["mode"], int(meta["hold_until"])
         agent.goal = tuple(meta["goal"]) if meta["goal"] is not None else None
         agent.goal_idle, agent.learning = meta["goal_idle"], bool(meta["learning"])
+        part = "iac_log"
         agent.iac_log.extend(
             IACChoice(c["step"], tuple(c["action"]) if c["action"] else None, c["weight"],
                       c["n_applicable"], c["babbling"], tuple(c["weights"]))
             for c in meta["iac_log"])
+        part = "counters"
         agent.counters = AgentCounters(**meta["counters"])
+        part = "self_vars, step_count or seen_applied"
         agent.self_vars = set(meta["self_vars"])
         agent.step_count = int(meta["step_count"])
         agent.load_state(meta)                      # seen_applied
     except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
-        raise CheckpointError(f"{directory}: inconsistent agent checkpoint "
-                              f"({type(exc).__name__}: {exc})") from None
+        raise CheckpointError(f"{directory / AGENT_FILE}: inconsistent agent checkpoint in "
+                              f"{part} ({type(exc).__name__}: {exc})") from None
     return agent
 
 
