@@ -217,7 +217,7 @@ def format_report(figures: Sequence[dict[str, Any]], labels: Sequence[str]) -> s
             num(_mean(vals), "{:.1f}"))
     med = [f["landmarks_median"] for f in figures]
     row("landmarks per variable, median", f"{R['landmarks_median']:g} (Table 8.1)",
-        T["landmarks_median"], [num(m) for m in med], num(_mean(med), "{:.1f}"))
+        T["landmarks_median"], [num(m) for m in med], num(_mean(med), "{:.2f}"))
     top = [f["landmarks_max"] for f in figures]
     row("landmarks per variable, max", f"{R['landmarks_max']} (Table 8.1)",
         T["landmarks_max"], [f"{f['landmarks_max']} ({pretty(f['landmarks_max_variable'])})"

@@ -94,7 +94,7 @@ def run_sync(args: argparse.Namespace, world: Any, params: Any) -> int:
     say(format_knowledge(agent.knowledge(), limit=25))
     print_written(out)
     if "interrupted_at" in summary:
-        print(f"qlap run: interrupted before step {summary['interrupted_at']}; what was "
+        print(f"qlap run: interrupted after {summary['steps']:,} steps; what was "
               f"learned is written — go on from it: qlap run --resume {out}/checkpoints/final "
               "--placement sync --out NEW_DIR", file=sys.stderr)
         return 130

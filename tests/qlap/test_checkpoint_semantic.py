@@ -62,6 +62,7 @@ CASES = {
     "step_count": ("agent.json", lambda m: m.update(step_count=-1)),
     "learning": ("agent.json", lambda m: m.update(learning="x")),
     "mode": ("agent.json", lambda m: m.update(mode="dance")),
+    "world": ("agent.json", lambda m: m.update(world=17)),
     "variables": ("learner.json", lambda m: m.update(variables="x")),
     # fields read without a check of their own: the error names the part being read
     "actions": ("agent.json", lambda m: m.update(actions=["x"])),

@@ -276,6 +276,9 @@ def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> Non
         dbn_id = d.get("dbn_id") if isinstance(d, dict) else None
         if dbn_id not in learner.dbns:
             raise _bad(where, f"plans[{j}].dbn_id", f"names no DBN of the learner: {dbn_id!r}")
+    world = meta.get("world")
+    if world is not None and (not isinstance(world, str) or not world.strip()):
+        raise _bad(where, "world", f"must be a world spec such as 'core', got {world!r}")
     for field in ("step_count", "next_plan_id", "hold_until"):
         if not _is_int(meta.get(field)):
             raise _bad(where, field, f"must be an integer, got {meta.get(field)!r}")
