@@ -482,6 +482,16 @@ def test_unwritable_out_is_a_one_line_error_before_the_run(tmp_path, monkeypatch
     assert not (out / "metrics.jsonl").exists()
 
 
+def as_in_a_terminal() -> None:
+    """A child's signals as a terminal's foreground job has them: a runner in the background
+    (CI) ignores SIGINT, children inherit that, and an ignored signal stays ignored
+    (``interrupt.heeded``)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize(("placement", "sig"), [("sync", "SIGINT"), ("sync", "SIGTERM"),
                                                 ("embedded", "SIGTERM")])
 def test_a_signal_stops_a_run_between_two_steps_with_its_outputs(tmp_path, placement, sig):
@@ -495,7 +505,8 @@ def test_a_signal_stops_a_run_between_two_steps_with_its_outputs(tmp_path, place
     qlap = str(Path(sys.executable).parent / "qlap")
     p = subprocess.Popen([qlap, "run", "--headless", "--placement", placement, "--world", WORLD,
                           "--steps", "1000000", "--out", str(out), "--quiet"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=as_in_a_terminal)
     try:
         deadline = time.monotonic() + 120
         while not (out / "metrics.jsonl").is_file() and time.monotonic() < deadline:
@@ -504,6 +515,7 @@ def test_a_signal_stops_a_run_between_two_steps_with_its_outputs(tmp_path, place
         _, err = p.communicate(timeout=120)
     finally:
         p.kill()
+        p.communicate()
     assert p.returncode == 130, err
     summary = json.loads((out / "summary.json").read_text())
     assert 0 < summary["steps"] < 1_000_000
@@ -525,7 +537,8 @@ def test_an_ignored_hangup_stays_ignored(tmp_path, placement):
     p = subprocess.Popen([qlap, "run", "--headless", "--placement", placement, "--world", WORLD,
                           "--steps", "1000000", "--out", str(out), "--quiet"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+                         preexec_fn=lambda: (as_in_a_terminal(),
+                                             signal.signal(signal.SIGHUP, signal.SIG_IGN)))
     try:
         deadline = time.monotonic() + 120
         while not (out / "metrics.jsonl").is_file() and time.monotonic() < deadline:
@@ -537,6 +550,7 @@ def test_an_ignored_hangup_stays_ignored(tmp_path, placement):
         _, err = p.communicate(timeout=120)
     finally:
         p.kill()
+        p.communicate()
     assert p.returncode == 130, err
     assert (out / "checkpoints" / "final" / "agent.json").is_file()
 
@@ -546,15 +560,19 @@ def test_only_the_signals_not_ignored_are_heeded():
 
     from qlap_runtime.runtime.interrupt import heeded, stop_on_signals
 
-    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGHUP)}
+    signal.signal(signal.SIGINT, signal.default_int_handler)   # as in a terminal
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)               # as under nohup
     try:
         assert heeded((signal.SIGINT, signal.SIGHUP)) == (signal.SIGINT,)
         with stop_on_signals((signal.SIGINT, signal.SIGHUP)):
             assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
-            assert callable(signal.getsignal(signal.SIGINT))
+            assert signal.getsignal(signal.SIGINT) is not signal.default_int_handler
         assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
-        signal.signal(signal.SIGHUP, previous)
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 @pytest.mark.parametrize(("placement", "quiet"), [("sync", False), ("embedded", False),
