@@ -191,8 +191,9 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
     of the task's, while the task still judges the trial: how well one learned action would do
     the task (``qlap eval --goal``, docs/analysis.md).
 
-    ``counts`` (if given) counts the policy's ``steps`` and those ``without_plan``: the agent
-    had no plan for the goal and moved randomly (or held still) instead (§7.2.1).
+    ``counts`` (if given) counts the policy's ``steps``, those in which the goal already held
+    (``goal_held``: nothing to do), and those ``without_plan``: the goal did not hold, the agent
+    had no plan for it and moved randomly (or held still) instead (§7.2.1).
 
     ``trace`` (if given) gets one record per step (:func:`trace_record`): what the agent
     was doing, for ``qlap eval --trace``.
@@ -221,8 +222,13 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
         motor = agent.step(int(state["t"]), obs,
                            discontinuity=bool(getattr(w, "discontinuity", False)))
         if counts is not None:
+            p = agent.last_percept
+            held = (p is not None and agent.goal is not None
+                    and int(p.q[agent.goal[0]]) == agent.goal[1])
             counts["steps"] = counts.get("steps", 0) + 1
-            counts["without_plan"] = counts.get("without_plan", 0) + (agent.mode == "idle")
+            counts["goal_held"] = counts.get("goal_held", 0) + held
+            counts["without_plan"] = (counts.get("without_plan", 0)
+                                      + (agent.mode == "idle" and not held))
         if trace is not None:
             trace.append(trace_record(agent, state["trial"], w.step_count, goal, motor))
         return motor
@@ -289,6 +295,7 @@ def evaluate(checkpoint: str | Path, world: Any, task_name: str, trials: int, se
             write_trace(trace, records, res["rewards"])
             res["waiting_steps"] = sum(1 for rec in records if rec["waiting"])
         res["steps_without_plan"] = counts.get("without_plan", 0)
+        res["steps_goal_held"] = counts.get("goal_held", 0)
         res["policy_steps"] = counts.get("steps", 0)
         if pursue is not None:
             res["pursued"] = f"{pursue.variable}={pursue.value}"

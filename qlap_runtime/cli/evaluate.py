@@ -76,6 +76,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         elif res.get("steps_without_plan"):
             print(f"  without a plan for the goal: {res['steps_without_plan']:,} of "
                   f"{res['policy_steps']:,} steps (moving randomly meanwhile)")
+        if res.get("steps_goal_held") and "pursued" in res:
+            print(f"  {res['pursued']} already held in {res['steps_goal_held']:,} of "
+                  f"{res['policy_steps']:,} steps (nothing to do there)")
         goals = res.get("by_goal", {})
         if len(goals) > 1:              # a task that draws its goal: each goal's trials
             for name, g in goals.items():
