@@ -222,9 +222,7 @@ def goal_policy(agent: Agent, world: Any, task_name: str, pursue: Any = None,
         motor = agent.step(int(state["t"]), obs,
                            discontinuity=bool(getattr(w, "discontinuity", False)))
         if counts is not None:
-            p = agent.last_percept
-            held = (p is not None and agent.goal is not None
-                    and int(p.q[agent.goal[0]]) == agent.goal[1])
+            held = agent.goal_held()
             counts["steps"] = counts.get("steps", 0) + 1
             counts["goal_held"] = counts.get("goal_held", 0) + held
             counts["without_plan"] = (counts.get("without_plan", 0)

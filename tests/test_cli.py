@@ -63,6 +63,12 @@ def test_show_and_eval_on_a_run(tmp_path):
     assert res["policy"] == "qlap"
     assert -3.01 <= res["mean_reward"] <= 9.99
     assert sum(g["trials"] for g in res["by_goal"].values()) == 3
+    # A goal the 3,000-step agent has no plan for ([0]): the note says the figures are a random
+    # policy's, though the goal held in some steps (counted apart, not as steps without a plan).
+    r = qlap("eval", "--world", "core2d", "--checkpoint", str(out / "checkpoints" / "final"),
+             "--task", "move_block", "--trials", "3", "--goal", "h_x.dot=0")
+    assert r.returncode == 0, r.stderr
+    assert "note: the agent had no plan for h_x.dot=0 in any step" in r.stdout, r.stdout
     r = qlap("eval", "--world", "core2d", "--policy", "random", "--task", "move_block",
              "--trials", "12")
     assert r.returncode == 0, r.stderr

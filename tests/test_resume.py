@@ -107,12 +107,12 @@ def test_a_missing_stats_part_names_the_realtime_clock(tmp_path):
     the realtime clock keeps none (the usual case), else the part was lost."""
     import json
 
-    from qlap_runtime.placements.resume import _stats_gone
+    from qlap_runtime.placements.resume import why_no_stats
 
     ckpt = tmp_path / "run" / "checkpoints" / "final"
     ckpt.mkdir(parents=True)
-    assert _stats_gone(ckpt) == "an actor placement's checkpoint without its stats part"
+    assert why_no_stats(ckpt) == "an actor placement's checkpoint without its stats part"
     (tmp_path / "run" / "summary.json").write_text(json.dumps({"clock": "realtime"}))
-    assert _stats_gone(ckpt) == "a run under --clock realtime, whose learners keep none"
+    assert why_no_stats(ckpt) == "a run under --clock realtime, whose learners keep none"
     (tmp_path / "run" / "summary.json").write_text("[")
-    assert _stats_gone(ckpt) == "an actor placement's checkpoint without its stats part"
+    assert why_no_stats(ckpt) == "an actor placement's checkpoint without its stats part"

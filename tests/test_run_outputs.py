@@ -482,6 +482,10 @@ def test_unwritable_out_is_a_one_line_error_before_the_run(tmp_path, monkeypatch
     assert not (out / "metrics.jsonl").exists()
 
 
+def has_a_line(path: Path) -> bool:
+    return path.is_file() and path.read_text().count("\n") > 0
+
+
 def as_in_a_terminal() -> None:
     """A child's signals as a terminal's foreground job has them: a runner in the background
     (CI) ignores SIGINT, children inherit that, and an ignored signal stays ignored
@@ -507,10 +511,14 @@ def test_a_signal_stops_a_run_between_two_steps_with_its_outputs(tmp_path, place
                           "--steps", "1000000", "--out", str(out), "--quiet"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=as_in_a_terminal)
+    # An actor run stopped while a batch is in flight names its newest periodic checkpoint to
+    # go on from (with none kept yet, it says so): wait for the first one there.
+    first = out / "checkpoints" / "step-0010000" / "agent.json"
     try:
         deadline = time.monotonic() + 120
-        while not (out / "metrics.jsonl").is_file() and time.monotonic() < deadline:
-            time.sleep(0.1)
+        while not (has_a_line(out / "metrics.jsonl") if placement == "sync"
+                   else first.is_file()) and time.monotonic() < deadline:
+            time.sleep(0.1)                 # the run has taken steps (the file comes first)
         p.send_signal(getattr(signal, sig))
         _, err = p.communicate(timeout=120)
     finally:
@@ -541,10 +549,15 @@ def test_an_ignored_hangup_stays_ignored(tmp_path, placement):
                                              signal.signal(signal.SIGHUP, signal.SIG_IGN)))
     try:
         deadline = time.monotonic() + 120
-        while not (out / "metrics.jsonl").is_file() and time.monotonic() < deadline:
-            time.sleep(0.1)
+        while not has_a_line(out / "metrics.jsonl") and time.monotonic() < deadline:
+            time.sleep(0.1)                 # the run has taken steps (the file comes first)
+        lines = len((out / "metrics.jsonl").read_text().splitlines())
         p.send_signal(signal.SIGHUP)
-        time.sleep(2)
+        deadline = time.monotonic() + 120          # the run goes on: its log grows after it
+        while (len((out / "metrics.jsonl").read_text().splitlines()) < lines + 3
+               and time.monotonic() < deadline):
+            assert p.poll() is None, p.communicate()[1]
+            time.sleep(0.1)
         assert p.poll() is None, p.communicate()[1]
         p.send_signal(signal.SIGTERM)
         _, err = p.communicate(timeout=120)

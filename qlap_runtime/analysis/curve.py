@@ -297,8 +297,14 @@ def _collect(run_dirs: list[Path], labels: list[str],
             raise AnalysisError(f"{run_dir}: no such run directory")
         found = find_checkpoints(run_dir, label)
         if not found and (run_dir / "agent.json").is_file():
-            raise AnalysisError(f"{run_dir} is a checkpoint, not a run directory: give the run "
-                                f"that holds it ({run_dir.resolve().parent.parent})")
+            holder = run_dir.resolve().parent
+            raise AnalysisError(
+                f"{run_dir} is a checkpoint, not a run directory: give "
+                + (f"the run that holds it ({holder.parent})" if holder.name == "checkpoints"
+                   else "a run directory (one with checkpoints/)"))
+        if not found and run_dir.name == "checkpoints":
+            raise AnalysisError(f"{run_dir} holds a run's checkpoints: give the run directory "
+                                f"({run_dir.resolve().parent})")
         if not found:
             raise AnalysisError(f"{run_dir}: no agent checkpoints under checkpoints/")
         specs.add(run_world(run_dir, found, world))

@@ -62,7 +62,7 @@ def _curve_groups(path: Path) -> list[tuple[str, list[Any], Any]]:
     out = []
     for (task, world, trials, seed), g in sorted(groups.items()):
         label = f"{task} ({world}, {trials} trials, seed {seed})"
-        for i, (run, qlap) in enumerate(sorted(g["runs"].items())):
+        for i, (run, qlap) in enumerate(g["runs"].items()):     # curve.csv's order
             named = f"{label}, {run}" if len(g["runs"]) > 1 else label
             out.append((named, sorted(qlap, key=lambda r: r.step),
                         g["random"] if i == 0 else None))
@@ -138,8 +138,9 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None) -> Path:
             ax_curve.errorbar([r.step for r in rows], [r.mean_reward for r in rows],
                               yerr=yerr, fmt="o-", markersize=3, capsize=2, color=color,
                               label=label)
-            if baseline is not None:
-                ax_curve.axhline(baseline.mean_reward, linestyle="--", color=color,
+            if baseline is not None:                # one task's, not this run's: grey
+                ax_curve.axhline(baseline.mean_reward, linestyle="--",
+                                 color=color if len(curves) == 1 else "0.4",
                                  linewidth=0.9, label=f"random policy ({baseline.mean_reward:.2f})")
         ax_curve.set_ylabel("mean reward per trial")
     else:

@@ -13,9 +13,9 @@ def cmd_analysis(args: argparse.Namespace) -> int:
     from ..analysis import AnalysisError
     from ..analysis.curve import main_curve
     from ..analysis.report import main_report
-    from ..runtime.outputs import OutputError, check_out
+    from ..runtime.outputs import OutputError, check_out, missing_dirs, remove_empty
 
-    made = args.command == "curve" and args.out is not None and not args.out.exists()
+    made = missing_dirs(args.out) if args.command == "curve" and args.out is not None else []
     try:
         if args.command == "curve" and args.out is not None:
             check_out(args.out, min_free=2**20)     # before the evaluations, not after
@@ -29,8 +29,7 @@ def cmd_analysis(args: argparse.Namespace) -> int:
         print(main_report(args.runs, as_json=args.json))
     except (AnalysisError, OutputError) as exc:
         print(f"qlap {args.command}: {exc}", file=sys.stderr)
-        if made and args.out.is_dir() and not any(args.out.iterdir()):
-            args.out.rmdir()                        # a refused curve leaves no empty --out
+        remove_empty(made)                          # a refused curve leaves no empty --out
         return 2
     return 0
 

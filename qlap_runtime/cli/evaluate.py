@@ -69,7 +69,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         if "waiting_steps" in res:
             print(f"  a plan waited with the motors held in {res['waiting_steps']:,} of "
                   f"{res['policy_steps']:,} steps; trace: {args.trace}")
-        if res.get("policy_steps") and res["steps_without_plan"] == res["policy_steps"]:
+        if res.get("steps_without_plan") and (res["steps_without_plan"]
+                                              + res.get("steps_goal_held", 0)
+                                              == res["policy_steps"]):
             goal = res.get("pursued", "the task's goal")
             print(f"  note: the agent had no plan for {goal} in any step: it moved randomly "
                   f"(or held still) in every trial, as a random policy would")

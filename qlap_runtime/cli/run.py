@@ -21,8 +21,6 @@ letter."""
 def cmd_run(args: argparse.Namespace) -> int:
     try:
         return _cmd_run_inner(args)
-    except BrokenPipeError:              # a reader that left: not a failed write (main's)
-        raise
     except OSError as exc:               # e.g. the disk filled up during the run
         print(f"qlap run: {exc}" + stopped_run_tail(args, exc), file=sys.stderr)
         return 1

@@ -120,8 +120,10 @@ def _restore_world(world, checkpoint: Path) -> bool:
         return False
     restore_world(world, state, resolve_checkpoint(checkpoint) / "world.json")
     if statistics_missing(checkpoint):
-        print("qlap run: --resume: the checkpoint's learner has no pair statistics (an actor "
-              "placement's checkpoint without its stats part); the run will differ from an "
+        from ..placements.resume import why_no_stats
+
+        print("qlap run: --resume: the checkpoint's learner has no pair statistics "
+              f"({why_no_stats(resolve_checkpoint(checkpoint))}); the run will differ from an "
               "uninterrupted one", file=sys.stderr)
     return True
 

@@ -185,7 +185,7 @@ def quit_on_signals(fired: list[int]) -> Callable[..., Any]:
 
     async def watch(session: Any, ctx: Any, stop: trio.Event) -> None:
         signals = heeded((signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
-        if not signals:                     # every one ignored (nohup and a background job)
+        if not signals:                     # every one ignored (nohup, started with &)
             return
         with trio.open_signal_receiver(*signals) as sigs:
             async with trio.open_nursery() as nursery:

@@ -58,7 +58,7 @@ def in_flight_problem(checkpoint: Path, params, step: int, placement: str) -> st
     return None
 
 
-def _stats_gone(ckpt: Path) -> str:
+def why_no_stats(ckpt: Path) -> str:
     """Why an actor placement's checkpoint has no ``stats`` part: its run's clock was realtime
     (the learners keep none under it), or the part was lost."""
     import json
@@ -83,7 +83,7 @@ def resume_context(ctx: RunContext, checkpoint: Path) -> RunContext:
     ckpt = resolve_checkpoint(Path(checkpoint)).resolve()
     agent = load_agent(ckpt)
     if statistics_missing(ckpt):
-        raise ResumeRefused(f"{ckpt}: the learner has no pair statistics ({_stats_gone(ckpt)}): "
+        raise ResumeRefused(f"{ckpt}: the learner has no pair statistics ({why_no_stats(ckpt)}): "
                             "no placement resumes it exactly; --placement sync runs it "
                             "inexactly")
     if load_world_state(ckpt) is None:

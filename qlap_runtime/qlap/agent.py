@@ -434,6 +434,11 @@ class Agent(PlanCompilation, CallList):
         self.plans[plan.id] = plan
         self._rebuild(plan, fresh=True, planned=q)
 
+    def goal_held(self) -> bool:
+        """The goal holds in the latest step's percept (goal mode: nothing to do)."""
+        p = self._last_percept
+        return self.goal is not None and p is not None and self._achieved(self.goal, p)
+
     @property
     def last_percept(self) -> Percept | None:
         """The percept of the latest step (:meth:`decide`), None before the first."""

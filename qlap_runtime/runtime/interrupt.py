@@ -4,7 +4,7 @@ A run told to stop by a signal ends the way it ends after its last step: the out
 was learned are written (knowledge.json, summary.json, checkpoints/final), so that it can go on
 with ``--resume``. A second Ctrl-C interrupts at once, for a run that does not stop. A signal
 that is ignored when the run starts stays ignored (:func:`heeded`): ``nohup``'s SIGHUP, a
-background job's SIGINT.
+command started with ``&`` from a script (its SIGINT).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def heeded(signals: tuple[signal.Signals, ...]) -> tuple[signal.Signals, ...]:
-    """The ``signals`` not ignored now: a process started under ``nohup`` (SIGHUP ignored) or as
-    a shell's background job (SIGINT ignored) keeps them ignored, as programs do by convention
+    """The ``signals`` not ignored now: a process started under ``nohup`` (SIGHUP ignored) or with
+    ``&`` from a script (SIGINT ignored) keeps them ignored, as programs do by convention
     (Python itself installs its Ctrl-C handler only where SIGINT is not ignored)."""
     return tuple(s for s in signals if signal.getsignal(s) is not signal.SIG_IGN)
 

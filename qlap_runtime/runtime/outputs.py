@@ -32,16 +32,28 @@ def check_out(out: Path, min_free: int = MIN_FREE) -> None:
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputError(f"--out {out}: exists and is not a directory")
-    created = [p for p in (out, *out.parents) if not p.exists()]
+    created = missing_dirs(out)
     try:
         _probe(out, min_free)
     except OutputError:
-        for d in created:                   # innermost first; only the empty ones it made
-            try:
-                d.rmdir()
-            except OSError:
-                break
+        remove_empty(created)
         raise
+
+
+def missing_dirs(out: Path) -> list[Path]:
+    """``out`` and its parents that do not exist yet, innermost first: what making ``out``
+    creates, for :func:`remove_empty` when the command is refused after all."""
+    return [p for p in (Path(out), *Path(out).parents) if not p.exists()]
+
+
+def remove_empty(created: list[Path]) -> None:
+    """Remove the directories of :func:`missing_dirs` again, innermost first, as long as they
+    are empty (a refused command leaves no empty directory behind)."""
+    for d in created:
+        try:
+            d.rmdir()
+        except OSError:
+            break
 
 
 def _probe(out: Path, min_free: int) -> None:

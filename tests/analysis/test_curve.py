@@ -142,6 +142,13 @@ def test_curve_errors(runs, tmp_path):
     with pytest.raises(AnalysisError, match=r"is a checkpoint, not a run directory: give the "
                                             rf"run that holds it \({runs[0].resolve()}\)"):
         main_curve([final], "move_block", trials=2, echo=lambda s: None)
+    loose = shutil.copytree(final, tmp_path / "ck")
+    with pytest.raises(AnalysisError, match=r"ck is a checkpoint, not a run directory: give a "
+                                            r"run directory \(one with checkpoints/\)"):
+        main_curve([loose], "move_block", trials=2, echo=lambda s: None)
+    with pytest.raises(AnalysisError, match=r"checkpoints holds a run's checkpoints: give the "
+                                            r"run directory"):
+        main_curve([runs[0] / "checkpoints"], "move_block", trials=2, echo=lambda s: None)
     (tmp_path / "afile").write_text("")
     with pytest.raises(AnalysisError, match="afile: a file, not a run directory"):
         main_curve([tmp_path / "afile"], "move_block", trials=2, echo=lambda s: None)
@@ -153,7 +160,7 @@ def test_a_refused_curve_leaves_no_out_directory(runs, tmp_path):
                         "--task", "pickup", "--out", str(out)], capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 2 and "no task 'pickup'" in r.stderr
-    assert not out.exists()
+    assert not (tmp_path / "new").exists()                 # nor the parent it made
 
 
 def test_cli_hook(runs):

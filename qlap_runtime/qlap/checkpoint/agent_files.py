@@ -208,7 +208,7 @@ def load_agent(directory: str | Path) -> Any:
         agent.step_count = int(meta["step_count"])
         agent.load_state(meta)                      # seen_applied
     except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
-        raise CheckpointError(f"{directory / AGENT_FILE}: inconsistent agent checkpoint in "
+        raise CheckpointError(f"{jpath}: inconsistent agent checkpoint in "
                               f"{part} ({type(exc).__name__}: {exc})") from None
     return agent
 
