@@ -217,12 +217,7 @@ class PlainProgress:
         the run: the rest of the progress goes to /dev/null."""
         if self.closed:
             return
-        stream = self.stream if self.stream is not None else sys.stdout
-        try:
-            print(text, file=stream, flush=True)
-        except BrokenPipeError:
-            self.closed = True
-            silence_stream(stream)
+        self.closed = not print_to(self.stream if self.stream is not None else sys.stdout, text)
 
     def __call__(self, line: dict[str, Any]) -> None:
         with self._lock:
@@ -250,6 +245,17 @@ class PlainProgress:
             wall = float(summary.get("wall_time_s") or 0.0)
             self._print(self.format(int(summary.get("steps", self.total)), rate, summary,
                                     f"done in {_duration(wall)}"))
+
+
+def print_to(stream: TextIO, *values: object) -> bool:
+    """``print`` flushed to ``stream``; False when its reader has left (``qlap run … | head``):
+    the stream is silenced, so that what follows goes on without it."""
+    try:
+        print(*values, file=stream, flush=True)
+        return True
+    except BrokenPipeError:
+        silence_stream(stream)
+        return False
 
 
 def silence_stream(stream: TextIO) -> None:

@@ -270,6 +270,14 @@ class Received:
     """Wall-clock receive time (``time.time_ns()``) in the Zenoh callback."""
 
 
+async def cancel_when(event: trio.Event, scope: trio.CancelScope) -> None:
+    """Cancel ``scope`` once ``event`` is set: how a loop over a subscription (or signals) in a
+    nursery is ended from outside: ``nursery.start_soon(cancel_when, stop, nursery.cancel_scope)``.
+    """
+    await event.wait()
+    scope.cancel()
+
+
 class TrioSubscriber:
     """A Zenoh subscriber feeding a trio task, decoding at the edge.
 

@@ -42,7 +42,7 @@ from mcap.writer import CompressionType, Writer
 
 from .. import __version__
 from . import keys
-from .bridge import Received, RejectionCounter, TrioSubscriber
+from .bridge import Received, RejectionCounter, TrioSubscriber, cancel_when
 from .config import client_config
 from .qrecord import QRecord
 from .schema import (
@@ -322,10 +322,7 @@ async def record(source: Source, run_id: str | None, out_path: Path | str,
                 summary.messages += len(batch)
 
             async with trio.open_nursery() as nursery:
-                async def stop() -> None:
-                    await stop_event.wait()
-                    nursery.cancel_scope.cancel()
-                nursery.start_soon(stop)
+                nursery.start_soon(cancel_when, stop_event, nursery.cancel_scope)
                 async for batch in sub:  # a batch is taken whole: cancellation loses nothing
                     write(batch)
             write(sub.receive_nowait())
@@ -387,10 +384,7 @@ async def echo(source: Source, key_expr: str, stop_event: trio.Event, *,
                                                  decode=not raw))
         task_status.started()
         async with trio.open_nursery() as nursery:
-            async def stop() -> None:
-                await stop_event.wait()
-                nursery.cancel_scope.cancel()
-            nursery.start_soon(stop)
+            nursery.start_soon(cancel_when, stop_event, nursery.cancel_scope)
             async for batch in sub:
                 for r in batch:
                     text = as_json(r.msg, r.payload)[1].decode("utf-8", "backslashreplace")

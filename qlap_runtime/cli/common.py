@@ -103,9 +103,7 @@ def world_mismatch(checkpoint: Path, world: Any, spec: str) -> str | None:
 def say(*values: object) -> None:
     """``print`` to stdout for a run's report: a reader that left (``qlap run … | head``)
     silences the rest instead of failing a run that has its outputs to write."""
-    try:
-        print(*values, flush=True)
-    except BrokenPipeError:
-        from ..metrics import silence_stream
+    from ..metrics import print_to
 
-        silence_stream(sys.stdout)
+    print_to(sys.stdout, *values)
+

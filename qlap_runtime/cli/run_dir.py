@@ -57,6 +57,14 @@ RUN_FILES = ("knowledge.json", "summary.json", "metrics.jsonl", "checkpoints", "
 holds a run."""
 
 
+def resume_refused(args: argparse.Namespace) -> bool:
+    """``--resume`` whose checkpoint ``--out`` would write over (or lie in): said in one line."""
+    clash = resume_clash(args.resume, args.out)
+    if clash is not None:
+        print(f"qlap run: --resume: {clash}", file=sys.stderr)
+    return clash is not None
+
+
 def run_files_in(out: Path) -> list[str]:
     """The names of :data:`RUN_FILES` present in ``out`` (none if it does not exist)."""
     out = Path(out)

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from .common import say
-from .run_dir import kept_checkpoint, prepare_out, print_written, resume_clash
+from .run_dir import kept_checkpoint, prepare_out, print_written, resume_refused
 
 
 def run_sync(args: argparse.Namespace, world: Any, params: Any) -> int:
@@ -25,9 +25,7 @@ def run_sync(args: argparse.Namespace, world: Any, params: Any) -> int:
     agent = None
     restored = False
     if args.resume is not None:
-        clash = resume_clash(args.resume, args.out)
-        if clash is not None:
-            print(f"qlap run: --resume: {clash}", file=sys.stderr)
+        if resume_refused(args):
             return 2
         try:
             agent = load_agent(args.resume)
@@ -182,9 +180,7 @@ def run_actors(args: argparse.Namespace, world, params) -> int:
         from ..placements.resume import ResumeRefused, resume_context
         from ..qlap.checkpoint import CheckpointError
 
-        clash = resume_clash(args.resume, args.out)
-        if clash is not None:
-            print(f"qlap run: --resume: {clash}", file=sys.stderr)
+        if resume_refused(args):
             return 2
         try:
             ctx = resume_context(ctx, args.resume)

@@ -26,7 +26,7 @@ from typing import Any
 import trio
 import zenoh
 
-from ..bus.bridge import AliveWatcher
+from ..bus.bridge import AliveWatcher, cancel_when
 from ..bus.config import client_config, embedded_config, router_config
 from ..qlap.checkpoint import atomic_write_json
 from ..qlap.kernels import warm_kernels
@@ -189,11 +189,7 @@ def quit_on_signals(fired: list[int]) -> Callable[..., Any]:
             return
         with trio.open_signal_receiver(*signals) as sigs:
             async with trio.open_nursery() as nursery:
-                async def until_done() -> None:
-                    await stop.wait()
-                    nursery.cancel_scope.cancel()
-
-                nursery.start_soon(until_done)
+                nursery.start_soon(cancel_when, stop, nursery.cancel_scope)
                 async for signum in sigs:
                     if fired and signum == signal.SIGINT:
                         raise KeyboardInterrupt
