@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from worlds import DOT_BAND, make
+from worlds.base import VarKind
 from worlds.core import world as core
 from worlds.core.world import CoreWorld
 
@@ -321,3 +322,25 @@ def test_babbling_hand_is_not_always_at_a_limit(babble: Babble) -> None:
         x, y = obs["h_x"], obs["h_y"]
         at_limit += min(x - low[0], high[0] - x, y - low[1], high[1] - y) < 0.05
     assert at_limit / 5000 < 0.9
+
+
+def test_resolution_is_the_hands_mean_step_in_one_tick(babble: Babble) -> None:
+    """Every position-like magnitude declares the resolution 0.16 (docs/decisions.md 114): the
+    mean step of the hand and of the hand–block distances in one tick while they move, under
+    Appendix E's babbling (seed 0, 5,000 steps: 0.15–0.19); a landmark value narrower than
+    that is one the hand steps over."""
+    world = make("core")
+    prev = world.reset(seed=0)
+    declared = {v.name: v.resolution for v in world.variables if v.kind is VarKind.MAGNITUDE}
+    assert set(declared.values()) == {0.16} and core.RESOLUTION == 0.16
+    names = ("h_x", "h_y", "h_z", "x_RL", "x_LR", "y_TB", "y_BT", "c_x", "c_y")
+    steps: dict[str, list[float]] = {n: [] for n in names}
+    for obs in babble(world, 5000, 0):
+        if not world.discontinuity:
+            for n in names:
+                if (d := abs(obs[n] - prev[n])) > 1e-3:
+                    steps[n].append(d)
+        prev = obs
+    means = {n: float(np.mean(s)) for n, s in steps.items()}
+    assert all(0.14 <= m <= 0.20 for m in means.values()), means
+    assert float(np.mean(list(means.values()))) == pytest.approx(0.16, abs=0.02)

@@ -122,9 +122,11 @@ VARIANTS = (
 )
 
 
-RESOLUTION = 0.1
-"""Resolution of every position-like magnitude (a tenth of a unit, about 7 mm at the scale of
-§7.1; a hand step at moderate force is 0.1–0.2): no landmark is narrower or closer."""
+RESOLUTION = 0.16
+"""Resolution of every position-like magnitude: the hand's mean step in one tick while it moves
+(motor babbling, App. E: 0.15–0.18 for h_x, h_y, h_z and the hand–block distances; the block's
+T_L and T_T 0.20–0.21). No landmark is narrower or closer: a value narrower than the motion of
+one tick is one the motion steps over (docs/decisions.md 76 and 114)."""
 
 
 def _m(name: str, meaning: str, available_from: int = 0) -> VariableSpec:
