@@ -26,8 +26,9 @@ import pymunk
 
 from worlds.base import Goal, Task, VariableSpec, VarKind, World, with_resolution
 
-RESOLUTION = 0.1
-"""Resolution of the position-like magnitudes, as in core (a tenth of a unit)."""
+RESOLUTION = 0.16
+"""Resolution of the position-like magnitudes, as in core: the hand's mean step in one tick
+while it moves (babbling: 0.14–0.18 here; docs/decisions.md 114)."""
 
 __all__ = ["Core2DWorld", "make_core2d"]
 
