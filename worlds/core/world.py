@@ -62,7 +62,14 @@ import numpy as np
 
 from worlds.base import VariableSpec, VarKind, World, with_resolution
 from worlds.core.floating import FloatingBalls
-from worlds.core.geometry import HAND_HALF, HAND_HALF_Z, HAND_HIGH, HAND_LOW, HAND_OFFSET
+from worlds.core.geometry import (
+    HAND_HALF,
+    HAND_HALF_Z,
+    HAND_HIGH,
+    HAND_LOW,
+    HAND_OFFSET,
+    RESOLUTION,
+)
 from worlds.core.tasks import core_tasks
 
 __all__ = ["CoreWorld", "make_core"]
@@ -120,13 +127,6 @@ VARIANTS = (
     "contingent",
     "transfer",
 )
-
-
-RESOLUTION = 0.16
-"""Resolution of every position-like magnitude: the hand's mean step in one tick while it moves
-(motor babbling, App. E: 0.15–0.18 for h_x, h_y, h_z and the hand–block distances; the block's
-T_L and T_T 0.20–0.21). No landmark is narrower or closer: a value narrower than the motion of
-one tick is one the motion steps over (docs/decisions.md 76 and 114)."""
 
 
 def _m(name: str, meaning: str, available_from: int = 0) -> VariableSpec:

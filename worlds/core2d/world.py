@@ -25,10 +25,7 @@ import numpy as np
 import pymunk
 
 from worlds.base import Goal, Task, VariableSpec, VarKind, World, with_resolution
-
-RESOLUTION = 0.16
-"""Resolution of the position-like magnitudes, as in core: the hand's mean step in one tick
-while it moves (babbling: 0.14–0.18 here; docs/decisions.md 114)."""
+from worlds.core.geometry import RESOLUTION  # the same hand: its mean step, 0.14–0.18 here
 
 __all__ = ["Core2DWorld", "make_core2d"]
 
