@@ -203,6 +203,10 @@ class KnowledgeOps:
                 self._delete(dbn.id)
             elif val > split:
                 dbn.consequent = Event(var, val + 2, d)
+        # The pairs' set under the new numbering before any is added: with the old one the
+        # new landmark's value and the upper half would find their old numbers' pairs there
+        # and get no DBN (§4.5: two for each qualitative value).
+        self._pairs_of = {(dbn.antecedent, dbn.consequent) for dbn in self.dbns.values()}
         size = self.perception.spaces[var].size
         dot = self._dot_of[var]
         existing = {(d.consequent.value, d.consequent.direction)

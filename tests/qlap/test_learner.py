@@ -245,3 +245,25 @@ def test_a_deep_copy_of_a_learner_goes_on_like_the_learner():
     for i, d in straight.dbns.items():
         np.testing.assert_array_equal(work.dbns[i].cpt_s, d.cpt_s)
         np.testing.assert_array_equal(work.dbns[i].act_x, d.act_x)
+
+
+def test_a_landmark_inside_the_quantity_space_keeps_two_magnitude_dbns_per_value():
+    # §4.5: two magnitude DBNs for each qualitative value (none from below for the lowest
+    # value, none from above for the highest). Landmarks added below, above and between
+    # existing ones: x's space grows 1 → 3 → 5 → 7 → 9 → 11 values, and after each landmark
+    # every reachable (value, side) has its DBN. Before the fix the pairs' set still held
+    # the old numbering while the new values' DBNs were added, and a landmark at 2.0 below 5.0
+    # left values 1 and 2 without DBNs: (1, −1), (1, +1), (2, +1).
+    from qlap_runtime.qlap.delta import AddLandmark, Delta, delta_version
+
+    learner = ModelLearner(SPECS, Params())
+    x = learner.table.index("x")
+    for n, lb in enumerate((5.0, 2.0, 8.0, 3.5, 1.0), start=1):
+        learner.apply_delta(Delta(delta_version(n, "landmarks"), n, n,
+                                  (AddLandmark(x, lb, lb + 0.1, "event", n),)))
+        size = learner.perception.spaces[x].size
+        assert size == 1 + 2 * n
+        keys = sorted((d.consequent.value, d.consequent.direction)
+                      for d in learner.find_dbns(kind="magnitude") if d.consequent.var == x)
+        assert keys == sorted({(v, 1) for v in range(1, size)}
+                              | {(v, -1) for v in range(size - 1)})
