@@ -5,6 +5,7 @@ Both work on :class:`~.dbn.ModelStats`, so they can be tested with hand-made num
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -76,7 +77,8 @@ Chooser = Callable[[tuple[int, ...], list[int], bool], tuple[int, ModelStats]]
 
 def update_context(current: tuple[int, ...], candidates: Sequence[int],
                    evaluate: Callable[[tuple[int, ...]], ModelStats],
-                   params: Params, choose: Chooser | None = None) -> tuple[int, ...] | None:
+                   params: Params, choose: Chooser | None = None,
+                   reliable_once: bool = False) -> tuple[int, ...] | None:
     """Algorithm 3 (Appendix D.1): rebuild a context from ∅ by hill-climbing.
 
     ``evaluate(context)`` gives the DBN's statistics under a context on the stored activations.
@@ -87,6 +89,9 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
     ``choose(ctx, options, by_entropy)``, if given, returns the option and statistics the
     default would pick for one round (the lowest entropy if ``by_entropy``, else the highest
     brel, ties to the lower index) — a faster way to score all options at once.
+
+    ``reliable_once``: the model was sufficiently reliable at some time (§4.2.2), so the final
+    comparison treats it as sufficiently reliable (:func:`once_reliable`).
     """
     # evaluate is pure: each context is scored once (the final comparison with ``current``
     # often meets a context the climb already scored).
@@ -121,10 +126,20 @@ def update_context(current: tuple[int, ...], candidates: Sequence[int],
         r1 = r2
     if tuple(sorted(current)) != ctx:
         # r: the DBN under its current context (evaluated only when needed).
-        r = score(tuple(current))
+        r = once_reliable(score(tuple(current)), reliable_once)
         if is_model_improvement(r, r1, params):
             return ctx
     return None
+
+
+def once_reliable(r: ModelStats, reliable_once: bool) -> ModelStats:
+    """A model's statistics for Algorithm 1 with "sufficiently reliable" read as §4.2.2 defines
+    it: "a DBN r is sufficiently reliable if at any time brel(r) > θ_SR" — a model that was
+    stays so, whatever its last 200 activations say now (docs/decisions.md 117). Only the
+    existing model has a history; a candidate context is judged on its statistics."""
+    if reliable_once and not r.reliable:
+        return dataclasses.replace(r, reliable=True)
+    return r
 
 
 class StoredActivations:
@@ -230,8 +245,9 @@ ContextProblem = tuple[tuple[int, ...], Sequence[int], np.ndarray, np.ndarray]
 :class:`StoredActivations`)."""
 
 
-def update_contexts_many(problems: Sequence[ContextProblem], sizes,
-                         params: Params) -> list[tuple[int, ...] | None]:
+def update_contexts_many(problems: Sequence[ContextProblem], sizes, params: Params,
+                         reliable_once: Sequence[bool] | None = None
+                         ) -> list[tuple[int, ...] | None]:
     """:func:`update_context` with :meth:`StoredActivations.choose` for every problem, the
     same answers, with each round's counting done for all problems at once (Algorithm 3 on
     all of a batch's DBNs, §4.2.1, App. D.1: one DBN's arrays are too small for numpy's
@@ -346,5 +362,6 @@ def update_contexts_many(problems: Sequence[ContextProblem], sizes,
         r = scores[i].get(tuple(current))
         if r is None:
             r = acts[i].evaluate(tuple(current))
+        r = once_reliable(r, bool(reliable_once and reliable_once[i]))
         out.append(ctx[i] if is_model_improvement(r, r1[i], p) else None)
     return out

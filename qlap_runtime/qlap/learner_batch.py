@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from .context import is_model_improvement, update_contexts_many
+from .context import is_model_improvement, once_reliable, update_contexts_many
 from .dbn import CHANGE, DBN, ModelStats, context_cells, counts_by_cell, model_stats
 from .delta import (
     AddDBN,
@@ -284,7 +284,8 @@ class BatchLearning:
             # which counts dbn.total), the context, the candidates and the quantity spaces of
             # the candidates and context variables: a DBN whose search gave "no change" with
             # the same inputs gives it again (landmarks of other variables do not matter).
-            key = (dbn.total, dbn.context, tuple(cands), signature((*cands, *dbn.context)))
+            key = (dbn.total, dbn.context, tuple(cands), signature((*cands, *dbn.context)),
+                   dbn.ever_reliable)
             if dbn.context_unchanged == key:
                 continue
             X, ok = dbn.stored()
@@ -309,7 +310,8 @@ class BatchLearning:
             problems.append((tuple(at[v] for v in self.dbns[dbn_id].context),
                              [at[v] for v in cands], Q_all[row:row + len(X)], ok))
             row += len(X)
-        answers = update_contexts_many(problems, sizes, self.params)
+        answers = update_contexts_many(problems, sizes, self.params,
+                                       [self.dbns[d_id].ever_reliable for d_id, *_ in searched])
         for (dbn_id, key, _, _, _), new in zip(searched, answers, strict=True):
             if new is not None:
                 self._do(SetContext(dbn_id, tuple(cols[i] for i in new)))
@@ -480,7 +482,7 @@ class BatchLearning:
                 if space.interval_of_range(lb, ub) != q:
                     continue
                 if r is None:
-                    r = self.evaluator(dbn)(dbn.context)
+                    r = once_reliable(self.evaluator(dbn)(dbn.context), dbn.ever_reliable)
                 prop = self._landmark_proposal(dbn, r, var, lb, ub, X)
                 if prop is not None:
                     best = (DBNLandmark(wgain, dbn_id, var, q, prop[0], prop[1]), prop)

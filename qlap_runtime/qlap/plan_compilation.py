@@ -375,7 +375,8 @@ class PlanCompilation:
                                  Q_all[row:row + len(X)], ok))
                 row += len(X)
             answers = [None if a is None else tuple(cols[i] for i in a) for a in
-                       update_contexts_many(problems, [sizes[v] for v in cols], self.params)]
+                       update_contexts_many(problems, [sizes[v] for v in cols], self.params,
+                                            [plan.ever_reliable for plan, *_ in searches])]
         changes = []
         for plan, _, version, j in todo:
             dbn = self.learner.dbns[plan.dbn_id]

@@ -368,7 +368,7 @@ class Plan:
         acts = StoredActivations.quantized(X, ok, quantize_columns,
                                            (*candidates, *self.context_o), sizes, self.params)
         new = update_context(self.context_o, candidates, acts.evaluate, self.params,
-                             acts.choose)
+                             acts.choose, reliable_once=self.ever_reliable)
         return self.context_found(search[0], new, quantize_columns, sizes, version)
 
     def context_search(self, candidates: list[int], version: object = None
@@ -376,7 +376,7 @@ class Plan:
         """What :meth:`update_context` searches: None when it would answer "no change"
         without a search (the inputs of the last such answer, or no calls), else the inputs'
         key and the stored calls (real states, outcomes)."""
-        key = (self.calls, self.context_o, version, tuple(candidates))
+        key = (self.calls, self.context_o, version, tuple(candidates), self.ever_reliable)
         if version is not None and self._context_unchanged == key:
             return None
         X, ok = self.stored_calls()

@@ -121,3 +121,31 @@ def test_update_contexts_many_answers_as_update_context_one_by_one(
                 acts = StoredActivations(Q, ok, sizes, params)
                 want.append(update_context(current, cands, acts.evaluate, params, acts.choose))
             assert update_contexts_many(problems, sizes, params) == want
+
+
+def test_a_model_once_sufficiently_reliable_stays_so_in_algorithm_1():
+    # §4.2.2: "a DBN r is sufficiently reliable if at any time brel(r) > θ_SR". 60 activations
+    # of two 2-valued variables; successes by cell (v0, v1): (0, 0) 4 of 15, (1, 0) 6 of 15,
+    # none where v1 = 1. By hand (App. B.1, prior 1, 5 successes for a cell to count):
+    # brel ∅ = 11/62 = 0.177; {v0}: cell v0=1 7/32 = 0.219 (v0=0 has 4 successes: ⊥);
+    # {v1}: 11/32 = 0.344; {v0, v1}: 7/17 = 0.412, +0.068 over {v1}, short of (1+1)·0.05.
+    # So Algorithm 3 climbs ∅ → {v1} (+0.167 > 0.1) and stops; against the current {v0}
+    # {v1} gains 0.125 > 0.05 in brel — but if {v0}'s DBN was once sufficiently reliable,
+    # Algorithm 1 asks a sufficiently reliable r′, and {v1} (0.344 ≤ 0.75) is not.
+    from qlap_runtime.qlap.context import StoredActivations, once_reliable, update_contexts_many
+
+    cells = [(0, 0, 4), (0, 1, 0), (1, 0, 6), (1, 1, 0)]
+    Q = np.array([[a, b] for a, b, _ in cells for _ in range(15)], dtype=np.int64)
+    ok = np.array([i < s for _, _, s in cells for i in range(15)])
+    acts = StoredActivations(Q, ok, [2, 2], P)
+    assert acts.evaluate((0,)).brel == pytest.approx(7 / 32)
+    assert acts.evaluate((1,)).brel == pytest.approx(11 / 32)
+    assert acts.evaluate((0, 1)).brel == pytest.approx(7 / 17)
+    assert update_context((0,), [0, 1], acts.evaluate, P, acts.choose) == (1,)
+    assert update_context((0,), [0, 1], acts.evaluate, P, acts.choose,
+                          reliable_once=True) is None
+    assert update_contexts_many([((0,), [0, 1], Q, ok)] * 2, [2, 2], P,
+                                [False, True]) == [(1,), None]
+    r = acts.evaluate((0,))
+    assert not r.reliable and once_reliable(r, True).reliable
+    assert once_reliable(r, True).brel == r.brel and once_reliable(r, False) is r
