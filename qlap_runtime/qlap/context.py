@@ -257,7 +257,8 @@ def update_contexts_many(problems: Sequence[ContextProblem], sizes, params: Para
     of the same weights in the same order as its own call), the entropies and reliabilities
     are the same element-wise operations, and each problem's choice and statistics are
     then made from its own slice of the counts exactly as :meth:`StoredActivations.choose`
-    makes them.
+    makes them. ``reliable_once[i]``: problem i's model was sufficiently reliable at some time
+    (``update_context``'s ``reliable_once``).
     """
     p = params
     acts = [StoredActivations(Q, ok, sizes, p) for _, _, Q, ok in problems]

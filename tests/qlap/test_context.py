@@ -116,11 +116,15 @@ def test_update_contexts_many_answers_as_update_context_one_by_one(
                 current = tuple(sorted(rng.choice(8, size=int(rng.integers(0, 3)),
                                                   replace=False).tolist()))
                 problems.append((current, cands, Q, ok))
-            want = []
-            for current, cands, Q, ok in problems:
+            once = (rng.random(len(problems)) < 0.5).tolist()
+            want, want_once = [], []
+            for (current, cands, Q, ok), was in zip(problems, once, strict=True):
                 acts = StoredActivations(Q, ok, sizes, params)
                 want.append(update_context(current, cands, acts.evaluate, params, acts.choose))
+                want_once.append(update_context(current, cands, acts.evaluate, params,
+                                                acts.choose, reliable_once=was))
             assert update_contexts_many(problems, sizes, params) == want
+            assert update_contexts_many(problems, sizes, params, once) == want_once
 
 
 def test_a_model_once_sufficiently_reliable_stays_so_in_algorithm_1():
