@@ -209,14 +209,12 @@ class KnowledgeOps:
         self._pairs_of = {(dbn.antecedent, dbn.consequent) for dbn in self.dbns.values()}
         size = self.perception.spaces[var].size
         dot = self._dot_of[var]
-        existing = {(d.consequent.value, d.consequent.direction)
-                    for d in self.dbns.values() if d.kind == MAGNITUDE and d.consequent.var == var}
         for val in range(size):
             for d, ante_val in ((1, CHANGE_PLUS), (-1, CHANGE_MINUS)):
                 if (d > 0 and val == 0) or (d < 0 and val == size - 1):
                     continue                                  # unreachable from that side
-                if (val, d) not in existing:
-                    self._add_dbn(MAGNITUDE, Event(dot, ante_val, 0), Event(var, val, d), ())
+                # _add_dbn adds it unless its pair is there already (the DBN kept above).
+                self._add_dbn(MAGNITUDE, Event(dot, ante_val, 0), Event(var, val, d), ())
         for dbn in self.dbns.values():
             if dbn.kind == MAGNITUDE and dbn.consequent.var == var:
                 self._recount(dbn)
