@@ -840,3 +840,29 @@ def test_an_achieved_change_action_called_by_a_plan_gives_its_motor_command(
     keys = [f.key[0] for f in agent.call_list]
     assert keys[:2] == [parent.key[0], up[0]] and keys[-1] == u
     assert agent.motor["u"] > 0.29                    # u → (0.3…, +∞): the value that moves x up
+
+
+def test_a_dbn_deleted_for_its_age_is_learned_again_while_its_contingency_holds():
+    """§6.2.3 deletes a DBN neither sufficiently reliable nor a plan after ``dbn_max_age``
+    steps; the text does not forbid learning its pair again, and the pair statistics still
+    hold the contingency, so the next batch learns it anew, with a new age (docs/decisions.md
+    119: keeping it out for good, or until new evidence, both lost hit_floor)."""
+    import worlds
+    from qlap_runtime.agent_run import params_for_world, run_agent
+
+    world = worlds.make("core2d")
+    params = params_for_world(world, Params(babble_steps=1500, dbn_period=500,
+                                            landmark_period=1000, dbn_max_age=1000))
+    try:
+        agent, _ = run_agent(world, 6000, 3, params=params)
+        before = {(d.antecedent, d.consequent): d.created
+                  for d in agent.learner.dbns.values() if d.kind == CHANGE}
+        agent, _ = run_agent(world, 4000, 3, params=params, agent=agent)
+    finally:
+        world.close()
+    after = {(d.antecedent, d.consequent): d.created
+             for d in agent.learner.dbns.values() if d.kind == CHANGE}
+    again = {pair: (before[pair], created) for pair, created in after.items()
+             if pair in before and created > before[pair]}
+    # Deleted at the first batch past 1,000 steps of age, learned at the batch after.
+    assert again and all(new - old >= 1500 for old, new in again.values())
