@@ -233,8 +233,10 @@ class CallList:
         if (self.params.achieved_call == "support" and self.call_list
                 and v.kind is Kind.CHANGE and q != CHANGE_ZERO and self._achieved(key, p)):
             as_if = (var, CHANGE_ZERO)
+        # The stuck rule counts from the call (§5.2.3: nothing "change[s] in 10 timesteps"):
+        # the state at the call is the one to compare with.
         frame = Frame(key, t, plan_id=plan.id, last_change=t, call_x=p.x.copy(),
-                      practised=practised)
+                      practised=practised, last_sig=self._stuck_signature(plan, p))
         self.call_list.append(frame)
         depth = len(self.call_list) - 1
         assert plan.sarsa is not None
@@ -374,13 +376,16 @@ class CallList:
         t = p.step
         if t - f.started >= self.params.option_max_steps:
             return True
-        s = self._plan_state(plan, p)
-        q = self._q_list(p)
-        sig = (s, *[q[v] for v in self._self_sorted()])
+        sig = self._stuck_signature(plan, p)
         if sig != f.last_sig:
             f.last_sig, f.last_change = sig, t
             return False
         return t - f.last_change >= self.params.stuck_steps
+
+    def _stuck_signature(self, plan: Plan, p: Percept) -> tuple:
+        """What the stuck rule watches (§5.2.3): the plan's state and the self variables."""
+        q = self._q_list(p)
+        return (self._plan_state(plan, p), *[q[v] for v in self._self_sorted()])
 
     def _end_sub(self, i: int, p: Percept, goal: bool) -> None:
         """The plan of frame i ends: terminal Sarsa update for its running sub-action."""

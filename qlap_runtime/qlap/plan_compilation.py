@@ -91,6 +91,18 @@ class PlanCompilation:
             if self.goal is not None and self.goal[0] == var and self.goal[1] > split:
                 self.goal = (var, self.goal[1] + 2)
         self.actions.sync(sizes)
+        if splits:
+            # The plans' goals and actions renumbered as their DBNs' consequents were, before
+            # anything reads them: a compilation converts DBNs (one plan from each side,
+            # §5.3; criterion 1, §6.2.2) before it rebuilds the plans. With the old numbers
+            # the plans of a split value's neighbours stood for the new values, whose
+            # magnitude DBNs then got no plan until the next batch, and criterion 1 read the
+            # wrong plan (docs/decisions.md 120).
+            for plan in self.plans.values():
+                dbn = self.learner.dbns.get(plan.dbn_id)
+                if dbn is not None:
+                    plan.follow_dbn(dbn)
+            self._plans_changed()
         if cut is not None:
             self._end_frames(cut)
         return value_maps
@@ -213,6 +225,13 @@ class PlanCompilation:
                 continue
             if changed and old_space is not None:
                 self._follow_structure(plan, old_space, old_actions, value_maps, p)
+        # The second-order CPTs in the new numbering of their C_o, as a plan delta's
+        # PlanContexts recounts them (rel(o, s) and the calls read and write their cells).
+        quantize, sizes = self.learner.perception.quantize_columns, self._sizes()
+        signature = self.learner.perception.landmark_signature
+        for pid in sorted(self.plans):
+            plan = self.plans[pid]
+            plan.recount(quantize, sizes, signature(sorted(plan.context_o)))
         self._update_self()
 
     def _drop_context(self, plan: Plan) -> None:
@@ -277,7 +296,9 @@ class PlanCompilation:
                     {(a.var, a.value) for a in plan.actions}:
                 self._end_frames(i + 1)
             return
-        s_old = descendant_state(old_space, plan.space, value_maps, f.sub_state, p.q)
+        # A sub-action whose state was lost by an earlier rebuild has none to follow.
+        s_old = descendant_state(old_space, plan.space, value_maps, f.sub_state, p.q) \
+            if f.sub_state >= 0 else None
         f.sub = new_sub
         if s_old is None or not np.isfinite(plan.q[s_old, new_sub]):
             f.sub_state = -1                            # no Sarsa update for this one

@@ -137,6 +137,16 @@ class Plan:
         self._dot_of = {v.source: v.index for v in table if v.kind is Kind.CHANGE}
 
     # -- structure ------------------------------------------------------------------------------
+    def follow_dbn(self, dbn: DBN) -> None:
+        """The goal and the action from the DBN's consequent, which a landmark may have
+        renumbered (§4.4): until the plan is rebuilt, what it is a plan of is read from them
+        (§5.3's one plan from each side, §6.2.2's criterion 1)."""
+        g = dbn.consequent
+        goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
+        if goal != self.goal:
+            self.goal = goal                     # equal: kept (the same object)
+        self.action = (g.var, g.value)
+
     def build(self, dbn: DBN, sizes: Mapping[int, int] | list[int], rel_action: RelAction,
               rel_model: Callable[[PlanStateSpace], np.ndarray], fresh: bool = False,
               value_maps: Mapping[int, np.ndarray] | None = None,
@@ -159,11 +169,7 @@ class Plan:
         built elsewhere from the same inputs (:class:`ModelMemo`), and where this one goes.
         """
         self.last_planned = None
-        g = dbn.consequent                       # landmarks may have renumbered it
-        goal = Event(g.var, g.value, g.direction if self.kind != CHANGE else 0)
-        if goal != self.goal:
-            self.goal = goal                     # equal: kept, as the space below
-        self.action = (g.var, g.value)
+        self.follow_dbn(dbn)                     # landmarks may have renumbered it
         ante = dbn.antecedent
         spec = PlanSpec(goal=self.goal, antecedent=ante, magnitude_plan=self.kind != CHANGE,
                         magnitude_vars=self._magnitudes)

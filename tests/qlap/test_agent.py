@@ -866,3 +866,82 @@ def test_a_dbn_deleted_for_its_age_is_learned_again_while_its_contingency_holds(
              if pair in before and created > before[pair]}
     # Deleted at the first batch past 1,000 steps of age, learned at the batch after.
     assert again and all(new - old >= 1500 for old, new in again.values())
+
+
+def test_a_landmark_inside_a_magnitude_gives_its_new_values_plans_in_the_same_compilation(
+        trained):
+    """§5.3: a magnitude action has a plan from each side. A landmark inside x's quantity
+    space renumbers the values above it; the plans' goals follow their DBNs before the
+    compilation converts DBNs, so the new values' magnitude DBNs get their plans at once.
+    With the old numbers the neighbours' plans stood for the new values and refused them until
+    the next batch (docs/decisions.md 120)."""
+    import copy
+
+    from qlap_runtime.qlap.delta import AddLandmark, Delta
+
+    agent, world = copy.deepcopy(trained)
+    x = agent.table.index("x")
+    space = agent.learner.perception.spaces[x]
+    lo, hi = space.bounds(2)                        # a bounded interval inside the space
+    assert np.isfinite(lo) and np.isfinite(hi)
+    mid = (lo + hi) / 2
+    t = agent.step_count + 1
+
+    def sides() -> set[tuple[int, int]]:
+        return {(pl.goal.value, pl.goal.direction) for pl in agent.plans.values()
+                if pl.kind == MAGNITUDE and pl.goal.var == x}
+
+    size = old_size = space.size
+    assert sides() == {(v, 1) for v in range(1, size)} | {(v, -1) for v in range(size - 1)}
+    agent.learner.apply_delta(Delta(99, t - 1, t - 1, (AddLandmark(x, mid, mid, "dbn", t - 1),)))
+    p = agent.learner.observe(t, {"x": world.x, **agent.motor})
+    agent._seen_applied = agent.learner.applied_count
+    delta = agent.planning_copy(agent.learner.batch_copy()).compile_plans(t, t)
+    agent.apply_plans(delta, p, agent._follow_landmarks())
+    size = agent.learner.perception.spaces[x].size
+    assert size == old_size + 2
+    assert sides() == {(v, 1) for v in range(1, size)} | {(v, -1) for v in range(size - 1)}
+
+
+def test_the_stuck_rule_counts_ten_steps_from_the_call(trained):
+    """§5.2.3: stuck when none of the plan's or self variables "change in 10 timesteps",
+    counted from the call: a frame records the state it was called in, so a state that never
+    changes is stuck 10 steps after the call (it was 11: the first look found nothing
+    recorded and started the count again)."""
+    agent, _ = copy.deepcopy(trained)
+    agent.learning = False
+    agent.call_list.clear()
+    p = agent._last_percept
+    xdot = agent.table.index("x.dot")
+    key = next(k for k in ((xdot, 2), (xdot, 0)) if p.q[xdot] != k[1])
+    assert agent._call(key, p) != FAIL
+    f = agent.call_list[0]
+    plan = agent.plans[f.plan_id]
+    assert f.last_change == p.step
+    later = [dataclasses.replace(p, step=p.step + d) for d in (1, 9, 10)]
+    assert not agent._stuck_or_out_of_time(f, plan, later[0])
+    assert not agent._stuck_or_out_of_time(f, plan, later[1])
+    assert agent._stuck_or_out_of_time(f, plan, later[2])
+
+
+def test_knowledge_followed_without_a_plan_delta_recounts_the_second_order_cpts(trained):
+    """Under the realtime clock a batch's landmarks may arrive before its plan delta; the
+    plans are then rebuilt here (``_follow_knowledge``), and their second-order CPTs must be
+    laid out in the new values of C_o, as a plan delta's recount lays them (§5.4), or rel(o, s)
+    reads, and calls are counted in, the wrong cells."""
+    from qlap_runtime.qlap.delta import AddLandmark, Delta
+
+    agent, world = copy.deepcopy(trained)
+    x = agent.table.index("x")
+    plan = next(pl for pl in agent.plans.values() if x in pl.context_o)
+    space = agent.learner.perception.spaces[x]
+    lo, hi = space.bounds(2)
+    t = agent.step_count + 1
+    agent.learner.apply_delta(Delta(99, t - 1, t - 1,
+                                    (AddLandmark(x, (lo + hi) / 2, (lo + hi) / 2, "dbn", t - 1),)))
+    p = agent.learner.observe(t, {"x": world.x, **agent.motor})
+    agent._follow_knowledge(p, agent._follow_landmarks())
+    sizes = agent._sizes()
+    cells = int(np.prod([sizes[v] for v in plan.context_o]))
+    assert len(plan.cpt_s) == len(plan.cpt_f) == cells == space.size
+    assert plan.cpt_s.sum() + plan.cpt_f.sum() == len(plan.stored_calls()[1])
