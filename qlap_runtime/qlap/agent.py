@@ -82,6 +82,8 @@ class Agent(PlanCompilation, CallList):
         self.hold_until = -1
         self.goal: ActionKey | None = None
         self.goal_idle = "babble"      # what goal mode does with no plan: babble | zero
+        self.goal_dropped: tuple[int, str] | None = None
+        """(step, why) of the last goal a new landmark split and so dropped (decision 121)."""
         self.learning = True
         """False: evaluation (§7.2). Nothing learned changes: no statistics of actions and
         plans, no Dyna, no model learning (the learner only perceives); Sarsa only within a

@@ -59,6 +59,8 @@ class PlanCompilation:
         call_list: list[Frame]
         counters: AgentCounters
         goal: ActionKey | None
+        goal_dropped: tuple[int, str] | None
+        step_count: int
         learner: ModelLearner
         mode: str
         model_memo: ModelMemo | None
@@ -90,6 +92,8 @@ class PlanCompilation:
             self.actions.on_landmark(var, split)
             if self.goal is not None and self.goal[0] == var and self.goal[1] > split:
                 self.goal = (var, self.goal[1] + 2)
+            elif self.goal is not None and self.goal[0] == var and self.goal[1] == split:
+                self._drop_split_goal(var, split)
         self.actions.sync(sizes)
         if splits:
             # The plans' goals and actions renumbered as their DBNs' consequents were, before
@@ -106,6 +110,19 @@ class PlanCompilation:
         if cut is not None:
             self._end_frames(cut)
         return value_maps
+
+    def _drop_split_goal(self, var: int, split: int) -> None:
+        """A landmark split the goal's value into three (§4.4): no one of them is the value
+        the user asked for, so the goal is dropped rather than silently narrowed to the lower
+        part, and :attr:`goal_dropped` says why (the UI shows it; docs/decisions.md 121)."""
+        v = self.table[var]
+        label = self.learner.value_label
+        parts = ", ".join(label(var, q) for q in range(split, split + 3))
+        self.goal_dropped = (self.step_count, f"goal on {v.name} dropped at step "
+                             f"{self.step_count + 1}: a new landmark split its value into "
+                             f"{parts}; give the goal again")
+        self.goal = None
+        self.mode = "idle"
 
     def planning_copy(self, learner: ModelLearner, deep: bool = False) -> Agent:
         """A private copy of the agent's plans and actions as they are now, on ``learner``

@@ -169,6 +169,8 @@ class Display:
         self.finished_at: float | None = None
         self.first: tuple[float, int] | None = None
         """(time, agent step) of the first status: a finished run's rate is its mean since."""
+        self.dropped_seen: tuple[int, str] | None = None
+        """The agent's last dropped goal already told (its status message says it once)."""
         topics = DISPLAY_TOPICS + (("world",) if world_view is not None else ())
         self.pubs = {topic: Publisher(session, run_id, topic) for topic in topics}
 
@@ -180,6 +182,10 @@ class Display:
     def status(self, agent: Any, clock: RunControl, *, clock_name: str, now: float,
                late_ticks: int = 0, missed_ticks: int = 0) -> Any:
         finished = self.finished_at is not None
+        dropped = agent.goal_dropped
+        if dropped is not None and dropped != self.dropped_seen:
+            self.dropped_seen = dropped         # a landmark split the goal's value
+            clock.message = dropped[1]
         if self.first is None:
             self.first = (now, agent.step_count)
         rate = self.cadence.steps_per_s(now, agent.step_count)

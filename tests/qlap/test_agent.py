@@ -945,3 +945,41 @@ def test_knowledge_followed_without_a_plan_delta_recounts_the_second_order_cpts(
     cells = int(np.prod([sizes[v] for v in plan.context_o]))
     assert len(plan.cpt_s) == len(plan.cpt_f) == cells == space.size
     assert plan.cpt_s.sum() + plan.cpt_f.sum() == len(plan.stored_calls()[1])
+
+
+def test_a_landmark_that_splits_the_goals_value_drops_the_goal_and_says_why(trained):
+    """Goal mode with learning on (the UI's ``g``): a landmark inside the goal's value leaves
+    three values, none the one asked for, so the goal is dropped with a note rather than
+    silently narrowed to the lower part; a goal above the split is renumbered (+2) and kept
+    (§4.4; docs/decisions.md 121)."""
+    import copy
+
+    from qlap_runtime.qlap.delta import AddLandmark, Delta
+
+    agent, world = copy.deepcopy(trained)
+    x = agent.table.index("x")
+    space = agent.learner.perception.spaces[x]
+    lo, hi = space.bounds(2)
+    assert np.isfinite(lo) and np.isfinite(hi) and space.size > 4
+    t = agent.step_count + 1
+
+    def split_value_2(at: int) -> None:
+        s = agent.learner.perception.spaces[x]
+        lo, hi = s.bounds(2)
+        mid = (lo + hi) / 2
+        agent.learner.apply_delta(Delta(99 + at, at - 1, at - 1,
+                                        (AddLandmark(x, mid, mid, "dbn", at - 1),)))
+        agent.learner.observe(at, {"x": world.x, **agent.motor})
+        agent._seen_applied = agent.learner.applied_count
+        agent._follow_landmarks()
+
+    agent.set_goal(x, 4)                                 # above the split: renumbered
+    split_value_2(t)
+    assert agent.goal == (x, 6) and agent.goal_dropped is None
+    agent.set_goal(x, 2)                                 # the split value itself: dropped
+    split_value_2(t + 1)
+    assert agent.goal is None and agent.mode == "idle"
+    step, why = agent.goal_dropped
+    parts = [agent.learner.value_label(x, q) for q in (2, 3, 4)]
+    assert why == (f"goal on x dropped at step {step + 1}: a new landmark split its value "
+                   f"into {', '.join(parts)}; give the goal again")

@@ -85,3 +85,16 @@ async def test_display_publishes_the_status_a_viewer_reads(embedded):
         t, step = d.first
         assert step == a.step_count - 50
         assert batch[-1].msg.steps_per_s == round(50 / (d.finished_at - t), 1) > 0
+
+
+async def test_a_goal_dropped_by_a_landmark_is_told_once_in_the_status(embedded):
+    """A landmark that splits the goal's value drops the goal (docs/decisions.md 121); the next
+    status says why, once, and a later command's answer replaces it."""
+    a = agent()
+    clock = RunControl(message="goal a(h_x, (-inf, 0))")
+    with Display(embedded, "runner-drop", placement="embedded", world="core2d", seed=0) as d:
+        a.goal_dropped = (a.step_count, "goal on h_x dropped at step 3: …")
+        assert d.status(a, clock, clock_name="free", now=0.0).message == \
+            "goal on h_x dropped at step 3: …"
+        clock.message = "paused"
+        assert d.status(a, clock, clock_name="free", now=0.1).message == "paused"
