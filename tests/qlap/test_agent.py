@@ -983,3 +983,21 @@ def test_a_landmark_that_splits_the_goals_value_drops_the_goal_and_says_why(trai
     parts = [agent.learner.value_label(x, q) for q in (2, 3, 4)]
     assert why == (f"goal on x dropped at step {step + 1}: a new landmark split its value "
                    f"into {', '.join(parts)}; give the goal again")
+
+
+def test_a_plan_removed_below_rel_o_005_is_made_again_from_its_dbn():
+    """§6.2.2 removes a plan whose rel(o) falls below 0.05; its DBN stays, and the conversion
+    of the same compilation may make it a plan again, with fresh statistics (the text does
+    not keep a DBN from becoming a plan again; the reading that does was measured and not
+    kept, docs/decisions.md 122)."""
+    agent = nrp_agent(PARAMS)
+    agent._convert_dbns_to_plans(100)
+    old = next(pl for pl in agent.plans.values() if pl.dbn_id == 0)
+    old.calls, old.successes = 30, 0                     # rel(o) = 1/32 < 0.05 (prior 1)
+    assert old.stats_removed(agent.params)
+    copy_ = agent.planning_copy(agent.learner.batch_copy())
+    delta = copy_.compile_plans(102, 102)
+    removed = [op.plan_id for op in delta.ops if type(op).__name__ == "RemovePlan"]
+    assert removed == [old.id]
+    again = [pl for pl in copy_.plans.values() if pl.dbn_id == 0]
+    assert len(again) == 1 and again[0].id != old.id and again[0].calls == 0
