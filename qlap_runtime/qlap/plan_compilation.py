@@ -90,10 +90,11 @@ class PlanCompilation:
         cut = self._renumber_frames(splits)
         for var, split in splits:
             self.actions.on_landmark(var, split)
-            if self.goal is not None and self.goal[0] == var and self.goal[1] > split:
-                self.goal = (var, self.goal[1] + 2)
-            elif self.goal is not None and self.goal[0] == var and self.goal[1] == split:
-                self._drop_split_goal(var, split)
+            if self.goal is not None and self.goal[0] == var:
+                if self.goal[1] > split:
+                    self.goal = (var, self.goal[1] + 2)
+                elif self.goal[1] == split:
+                    self._drop_split_goal(var, split)
         self.actions.sync(sizes)
         if splits:
             # The plans' goals and actions renumbered as their DBNs' consequents were, before
@@ -192,7 +193,6 @@ class PlanCompilation:
         iteration, on the executor's own statistics and Q-values (learned since the batch by
         Sarsa and Dyna, carried over by every rebuild). The call list keeps running unless a
         plan in it was removed or an action in it lost its meaning (docs/decisions.md)."""
-        quantize = self.learner.perception.quantize_columns
         for op in delta.ops:
             match op:
                 case RemovePlan(plan_id=pid):
@@ -202,12 +202,7 @@ class PlanCompilation:
                     for pid, context_o in changes:
                         if pid in self.plans:
                             self.plans[pid].context_o = context_o
-                    sizes = self._sizes()
-                    signature = self.learner.perception.landmark_signature
-                    for pid in sorted(self.plans):
-                        plan = self.plans[pid]
-                        plan.recount(quantize, sizes, signature(sorted(plan.context_o)))
-                        plan.refresh_reliable()
+                    self._recount_plans(refresh_reliable=True)
                 case AddPlan(plan_id=pid, dbn_id=dbn_id, q=q):
                     dbn = self.learner.dbns.get(dbn_id)
                     if dbn is not None:
@@ -244,12 +239,19 @@ class PlanCompilation:
                 self._follow_structure(plan, old_space, old_actions, value_maps, p)
         # The second-order CPTs in the new numbering of their C_o, as a plan delta's
         # PlanContexts recounts them (rel(o, s) and the calls read and write their cells).
+        self._recount_plans()
+        self._update_self()
+
+    def _recount_plans(self, refresh_reliable: bool = False) -> None:
+        """Every plan's second-order CPT recounted over its C_o in the current values (§5.4),
+        and with ``refresh_reliable`` its sticky reliability flag set if it is now earned."""
         quantize, sizes = self.learner.perception.quantize_columns, self._sizes()
         signature = self.learner.perception.landmark_signature
         for pid in sorted(self.plans):
             plan = self.plans[pid]
             plan.recount(quantize, sizes, signature(sorted(plan.context_o)))
-        self._update_self()
+            if refresh_reliable:
+                plan.refresh_reliable()
 
     def _drop_context(self, plan: Plan) -> None:
         plan.context_o = ()

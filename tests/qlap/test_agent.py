@@ -875,8 +875,6 @@ def test_a_landmark_inside_a_magnitude_gives_its_new_values_plans_in_the_same_co
     compilation converts DBNs, so the new values' magnitude DBNs get their plans at once.
     With the old numbers the neighbours' plans stood for the new values and refused them until
     the next batch (docs/decisions.md 120)."""
-    import copy
-
     from qlap_runtime.qlap.delta import AddLandmark, Delta
 
     agent, world = copy.deepcopy(trained)
@@ -952,8 +950,6 @@ def test_a_landmark_that_splits_the_goals_value_drops_the_goal_and_says_why(trai
     three values, none the one asked for, so the goal is dropped with a note rather than
     silently narrowed to the lower part; a goal above the split is renumbered (+2) and kept
     (§4.4; docs/decisions.md 121)."""
-    import copy
-
     from qlap_runtime.qlap.delta import AddLandmark, Delta
 
     agent, world = copy.deepcopy(trained)
@@ -990,6 +986,8 @@ def test_a_plan_removed_below_rel_o_005_is_made_again_from_its_dbn():
     of the same compilation may make it a plan again, with fresh statistics (the text does
     not keep a DBN from becoming a plan again; the reading that does was measured and not
     kept, docs/decisions.md 122)."""
+    from qlap_runtime.qlap.plan_delta import RemovePlan
+
     agent = nrp_agent(PARAMS)
     agent._convert_dbns_to_plans(100)
     old = next(pl for pl in agent.plans.values() if pl.dbn_id == 0)
@@ -997,7 +995,7 @@ def test_a_plan_removed_below_rel_o_005_is_made_again_from_its_dbn():
     assert old.stats_removed(agent.params)
     copy_ = agent.planning_copy(agent.learner.batch_copy())
     delta = copy_.compile_plans(102, 102)
-    removed = [op.plan_id for op in delta.ops if type(op).__name__ == "RemovePlan"]
+    removed = [op.plan_id for op in delta.ops if isinstance(op, RemovePlan)]
     assert removed == [old.id]
     again = [pl for pl in copy_.plans.values() if pl.dbn_id == 0]
     assert len(again) == 1 and again[0].id != old.id and again[0].calls == 0
