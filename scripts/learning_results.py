@@ -7,8 +7,9 @@
 
 (a) runs every seed that has no RUNS/W-sS/summary.json yet, as
     ``qlap run --headless --placement sync --world W --steps N --seed S --out RUNS/W-sS --quiet``,
-    --jobs at a time (resumable: finished seeds are skipped); (b) evaluates each task's curve
-over all seeds (``qlap curve … --every E --out RUNS/curve-TASK``, itself resumable); (c) reads
+    --run-jobs at a time, one by default (resumable: finished seeds are skipped); (b) evaluates
+each task's curve over all seeds with --jobs worker processes (``qlap curve … --every E --out
+RUNS/curve-TASK``, itself resumable); (c) reads
 the knowledge (``qlap report --json``, saved as RUNS/report.json); (d) draws the change DBNs
 over time (Fig. 7.9); (e) writes OUT/results.md atomically. The work is done by
 qlap_runtime/analysis/results.py; docs/analysis.md describes the page. Each world is judged by
@@ -56,7 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "run's last; 0: every checkpoint (default: 10000, the reference's "
                         "schedule)")
     p.add_argument("--jobs", type=positive_int, default=2,
-                   help="runs at a time, and worker processes of each curve (default: 2)")
+                   help="worker processes of each curve's evaluation (default: 2)")
+    p.add_argument("--run-jobs", type=positive_int, default=1,
+                   help="runs at a time (default: 1, each run alone: two side by side on a "
+                        "2-core machine each run about 1.4x slower, and the speed target is "
+                        "judged on runs made alone)")
     p.add_argument("--runs-dir", type=Path, default=None,
                    help="where the runs (W-sS/), their logs, the curves (curve-TASK/) and "
                         "report.json go (default: runs/results; pong: runs/pong-results)")
@@ -80,7 +85,7 @@ def make_config(args: argparse.Namespace, shown: list[str]) -> ResultsConfig:
     return ResultsConfig(
         world=args.world, seeds=list(args.seeds),
         steps=args.steps if args.steps is not None else targets.steps, trials=args.trials,
-        every=args.every or None, at=args.at, jobs=args.jobs,
+        every=args.every or None, at=args.at, jobs=args.jobs, run_jobs=args.run_jobs,
         runs_dir=args.runs_dir or Path(f"runs/{targets.world}-results" if own
                                        else "runs/results"),
         out=args.out or Path(f"docs/{targets.world}" if own else "docs"),

@@ -84,6 +84,11 @@ class ResultsConfig:
     """Steps evaluated besides the multiples of ``every`` (e.g. 20,000, the end of babbling, and
     the last three checkpoints that the targets compare with it)."""
     jobs: int = 2
+    """Worker processes of each curve's evaluation."""
+    run_jobs: int = 1
+    """Runs at a time. One by default: two runs side by side on a 2-core machine share its
+    cache and memory and each runs about 1.4× slower (docs/decisions.md 123), so only a run
+    made alone measures the loop's own speed."""
     runs_dir: Path = Path("runs/results")
     out: Path = Path("docs")
     tasks: list[str] | None = None
@@ -121,6 +126,24 @@ def world_tasks(world: str) -> list[str]:
 
 
 
+AT_A_TIME = "# runs at a time: {n}"
+"""The second line of a run's log (``RUNS/W-sS.log``): how many runs :func:`run_seeds` made
+side by side, which the page's speed table shows (:func:`runs_at_a_time`)."""
+
+
+def runs_at_a_time(run_dir: Path) -> int | None:
+    """How many runs were made side by side with ``run_dir`` (its log's second line, written
+    by :func:`run_seeds`); None when its log does not say (a run made otherwise)."""
+    log = Path(run_dir).parent / f"{Path(run_dir).name}.log"
+    try:
+        with open(log, encoding="utf-8", errors="replace") as f:
+            lines = [f.readline(), f.readline()]
+    except OSError:
+        return None
+    m = re.fullmatch(re.escape(AT_A_TIME).replace(r"\{n\}", r"(\d+)"), lines[1].strip())
+    return int(m.group(1)) if m else None
+
+
 def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs: int,
               echo: Echo = print, python: str = sys.executable) -> list[Path]:
     """Run every seed whose ``RUNS/W-sS/summary.json`` is missing, ``jobs`` at a time, each as
@@ -141,7 +164,8 @@ def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs
         log = runs_dir / f"{dirs[seed].name}.log"
         t0 = time.perf_counter()
         with open(log, "w") as f:
-            f.write(shlex.join(cmd) + "\n")
+            f.write(shlex.join(cmd) + "\n" + AT_A_TIME.format(n=max(1, min(jobs, len(todo))))
+                    + "\n")
             f.flush()
             rc = subprocess.run([python, "-m", "qlap_runtime.cli", *cmd[1:]], stdout=f,
                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
@@ -444,19 +468,28 @@ def _growth_cell(v: Mapping[str, Any]) -> str:
     return f"{v['rise']:+.1f} of {v['allowed']:.1f} allowed"
 
 
-def _speed_rows(data: Mapping[str, Any]) -> tuple[list[list[str]], float | None]:
+def _speed_rows(data: Mapping[str, Any], together: Mapping[str, int | None]
+                ) -> tuple[list[list[str]], float | None, int]:
+    """The speed table's rows, the mean steps/s of the runs made alone (None: none was), and
+    how many runs with a speed were not made alone (or do not say)."""
     rows = []
     values = []
+    others = 0
     for label, sp in data["speed"].items():
+        n = together.get(label)
+        made = "—" if n is None else ("alone" if n == 1 else f"{n} at a time")
         if sp is None or sp.get("steps_per_s") is None:
-            rows.append([label, "—", "—", speed_problem(sp)])
+            rows.append([label, "—", "—", speed_problem(sp), made])
             continue
-        values.append(float(sp["steps_per_s"]))
+        if n == 1:
+            values.append(float(sp["steps_per_s"]))
+        else:
+            others += 1
         rows.append([label, f"{sp['steps_per_s']:,.1f}",
                      "—" if sp.get("wall_time_s") is None else f"{sp['wall_time_s']:,.0f}",
-                     str(sp.get("placement", "sync"))])
+                     str(sp.get("placement", "sync")), made])
     mean = sum(values) / len(values) if values else None
-    return rows, mean
+    return rows, mean, others
 
 
 def _publish(path: Path, data: bytes) -> None:
@@ -514,7 +547,7 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
         "scripts/learning_results.py", "--world", cfg.world, "--seeds",
         *map(str, cfg.seeds), "--steps", str(cfg.steps), "--trials", str(cfg.trials),
         "--every", str(cfg.every or 0), *(["--at", *map(str, cfg.at)] if cfg.at else []),
-        "--jobs", str(cfg.jobs), "--runs-dir",
+        "--jobs", str(cfg.jobs), "--run-jobs", str(cfg.run_jobs), "--runs-dir",
         _shown(cfg.runs_dir), "--out", _shown(cfg.out), "--tasks",
         *[t.task for t in tasks]])
     protocol_ok = (_world_base(cfg.world) == T.world and cfg.steps == T.steps
@@ -536,7 +569,8 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
         f"- Generated {date} on a machine with {cores} cores (Python "
         f"{platform.python_version()}, {platform.system()}), commit {commit}.",
         f"- World `{cfg.world}`, seeds {', '.join(map(str, cfg.seeds))}, {cfg.steps:,} steps "
-        f"each, `--jobs {cfg.jobs}` runs and evaluations at a time; checkpoints evaluated "
+        f"each, made {cfg.run_jobs} at a time (`--run-jobs`), `--jobs {cfg.jobs}` evaluations "
+        "at a time; checkpoints evaluated "
         + ("all" if not cfg.every else f"every {cfg.every:,} steps and the last")
         + f", {cfg.trials} trials each (trial seed {cfg.eval_seed}, the same set-ups for every "
         "checkpoint), learning off (plans' Sarsa adapts within a trial and is undone before "
@@ -571,12 +605,14 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
               "are indicative only.", ""]
 
     krows = _knowledge_rows(data, T)
-    srows, smean = _speed_rows(data)
+    srows, smean, shared = _speed_rows(
+        data, {Path(d).name: runs_at_a_time(Path(d)) for d in run_dirs})
     glance = [[t.task, target, measured, _mark(ok)]
               for t in tasks for target, measured, ok in task_targets(t, T)]
     glance += [["knowledge", f"{r[0]}: {r[2]}", r[-3], r[-1]] for r in krows if r[2] != "—"]
     if T.steps_per_s is not None:
-        glance.append(["speed", f"sync loop ≥ {T.steps_per_s:,.0f} steps/s (mean)",
+        glance.append(["speed", f"sync loop ≥ {T.steps_per_s:,.0f} steps/s (mean of the runs "
+                       "made alone)",
                        "—" if smean is None else f"{smean:,.1f}",
                        _mark(None if smean is None else smean >= T.steps_per_s)])
     met = sum(row[-1] == _mark(True) for row in glance)
@@ -652,19 +688,25 @@ def render_page(cfg: ResultsConfig, tasks: Sequence[TaskResult], data: Mapping[s
 
     L += ["## Speed of the synchronous loop", "",
           "Agent steps per second of each run's loop as the run recorded it (`summary.json` "
-          f"`steps_per_s`); the runs this command makes run {cfg.jobs} at a time on {cores} "
-          "cores, and a finished run already in the runs directory is reused as it is. "
+          f"`steps_per_s`); the runs this command makes run {cfg.run_jobs} at a time "
+          f"(`--run-jobs`) on {cores} cores, and a finished run already in the runs directory "
+          "is reused as it is (its log says how many ran beside it). Only the runs made alone "
+          "are judged: two runs side by side on a 2-core machine share its cache and memory "
+          "and each runs about 1.4× slower (docs/decisions.md 123). "
           + (f"Target: a mean of at least {T.steps_per_s:,.0f} steps/s over a 250,000-step "
              "core run (a benchmark, not a test)." if T.steps_per_s is not None else
              f"No target for this world (the {ref.SYNC_STEPS_PER_S:,.0f} steps/s target is "
              "set for a 250,000-step core run)."), "",
-          table(["run", "steps/s", "wall time (s)", "placement"],
-                 [*srows, ["mean", "—" if smean is None else f"{smean:,.1f}", "", ""]]),
+          table(["run", "steps/s", "wall time (s)", "placement", "made"],
+                 [*srows, ["mean of the runs made alone",
+                           "—" if smean is None else f"{smean:,.1f}", "", "", ""]]),
           "",
-          f"Mean {'—' if smean is None else f'{smean:,.1f}'} steps/s"
+          f"Mean of the runs made alone {'—' if smean is None else f'{smean:,.1f}'} steps/s"
           + (": " + _mark(None if smean is None else smean >= T.steps_per_s)
-             + f" (target ≥ {T.steps_per_s:,.0f})." if T.steps_per_s is not None else
-             " (not judged)."), ""]
+             + f" (target ≥ {T.steps_per_s:,.0f})" if T.steps_per_s is not None else
+             " (not judged)")
+          + (f"; {shared} run(s) made beside others are shown, not judged." if shared
+             else "."), ""]
     L += ["## Files", "",
           f"Runs: `{_shown(cfg.runs_dir)}/` ({', '.join(Path(d).name for d in run_dirs)}); "
           f"curves: `{_shown(cfg.runs_dir)}/curve-TASK/curve.csv` (docs/analysis.md); the "
@@ -700,7 +742,7 @@ def build_results(cfg: ResultsConfig, echo: Echo = print) -> int:
     if len(set(cfg.seeds)) != len(cfg.seeds):
         raise AnalysisError("a seed is given twice")
     t0 = time.perf_counter()
-    run_dirs = run_seeds(cfg.world, cfg.seeds, cfg.steps, cfg.runs_dir, cfg.jobs, echo)
+    run_dirs = run_seeds(cfg.world, cfg.seeds, cfg.steps, cfg.runs_dir, cfg.run_jobs, echo)
 
     failures = 0
     results = []

@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from qlap_runtime.analysis import results
 from qlap_runtime.analysis.curve import CurvePoint, CurveRow
 from qlap_runtime.analysis.report import report_data
 from qlap_runtime.analysis.results import ResultsConfig, TaskResult, render_page
@@ -76,11 +77,14 @@ def core_inputs(tmp_path: Path, world: str = "core"
 def render(cfg: ResultsConfig, tasks: list[TaskResult], data: dict[str, Any],
            monkeypatch: pytest.MonkeyPatch, images: dict[str, str] | None = None,
            see_also: list[tuple[str, str]] | None = None) -> str:
-    """The page with the date, machine, Python and commit fixed."""
+    """The page with the date, machine, Python and commit fixed; core-s1 made alone and
+    core-s2 beside another run (pong-s1 alone), as their logs would say (``runs_at_a_time``)."""
+    monkeypatch.setattr(results, "runs_at_a_time",
+                        lambda d: {"core-s1": 1, "core-s2": 2, "pong-s1": 1}.get(Path(d).name))
     monkeypatch.setattr(platform, "python_version", lambda: "3.11.7")
     monkeypatch.setattr(platform, "system", lambda: "Linux")
     shown = images if images is not None else {
         **{t.task: f"results/curve-{t.task}.png" for t in tasks}, "dbn": "results/dbn-count.png"}
-    return render_page(cfg, tasks, data, shown, [Path("runs/results") / x for x in LABELS],
+    return render_page(cfg, tasks, data, shown, [Path("runs/results") / x for x in data["runs"]],
                        date="2026-12-02 06:29 UTC", cores=2, commit="e774191",
                        see_also=see_also or ())

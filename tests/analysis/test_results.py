@@ -17,6 +17,7 @@ from qlap_runtime.analysis.results import (
     _knowledge_rows,
     run_dir_name,
     run_seeds,
+    runs_at_a_time,
     task_targets,
 )
 from qlap_runtime.telemetry import pretty
@@ -128,7 +129,11 @@ def test_learning_results_end_to_end(tmp_path):
     assert "dissertation.txt" not in page and "DESIGN" not in page   # no file a clone lacks
     assert "issue" not in page.lower()
     mean_sps = sum(s["steps_per_s"] for s in summaries) / 2
-    assert f"| mean | {mean_sps:,.1f} |" in page
+    assert f"| mean of the runs made alone | {mean_sps:,.1f} |" in page   # --run-jobs 1
+    for s in (1, 2):
+        assert runs_at_a_time(tmp_path / "runs" / f"core2d-s{s}") == 1
+        sps = summaries[s - 1]["steps_per_s"]
+        assert f"| core2d-s{s} | {sps:,.1f} |" in page and "| sync | alone |" in page
 
     r = _script(*args)                                           # resumed: nothing recomputed
     assert r.returncode == 0, r.stdout + r.stderr
@@ -139,3 +144,23 @@ def test_learning_results_rejects_an_unknown_task(tmp_path):
     r = _script("--world", "core2d", "--tasks", "pickup", "--runs-dir", str(tmp_path))
     assert r.returncode == 2 and "no task 'pickup'" in r.stderr
     assert not list(tmp_path.iterdir())                          # checked before any run
+
+
+def test_speed_is_judged_on_the_runs_made_alone(tmp_path):
+    """Two runs side by side each run ~1.4x slower (docs/decisions.md 123): the speed's mean
+    is that of the runs whose log says they ran alone; the others are shown, not judged."""
+    from qlap_runtime.analysis.results import AT_A_TIME, _speed_rows
+
+    for name, n in (("core-s1", 1), ("core-s2", 2), ("core-s3", 1)):
+        (tmp_path / f"{name}.log").write_text("qlap run …\n" + AT_A_TIME.format(n=n) + "\n")
+    (tmp_path / "core-s4.log").write_text("qlap run …\n")         # made by hand: unknown
+    together = {f"core-s{i}": runs_at_a_time(tmp_path / f"core-s{i}") for i in (1, 2, 3, 4, 5)}
+    assert together == {"core-s1": 1, "core-s2": 2, "core-s3": 1, "core-s4": None,
+                        "core-s5": None}
+    speed = {f"core-s{i}": {"steps_per_s": v, "wall_time_s": 250_000 / v, "placement": "sync"}
+             for i, v in ((1, 1600.0), (2, 1000.0), (3, 1500.0), (4, 900.0), (5, 2000.0))}
+    rows, mean, others = _speed_rows({"speed": speed}, together)
+    assert mean == 1550.0 and others == 3                       # (1600 + 1500) / 2
+    assert [r[-1] for r in rows] == ["alone", "2 at a time", "alone", "—", "—"]
+    assert rows[1][:2] == ["core-s2", "1,000.0"]
+    assert _speed_rows({"speed": {"core-s2": speed["core-s2"]}}, together)[1] is None
