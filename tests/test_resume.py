@@ -74,6 +74,9 @@ def test_qlap_run_resume_restores_the_world_and_refuses_a_corrupt_state(capsys,
     code, _, err = qlap(capsys, *base, "--steps", "100", "--resume", str(final),
                         "--out", str(tmp_path / "ok"))
     assert code == 0 and "no world state" not in err
+    # --steps counts the steps after the checkpoint's (its --help says so): 600 + 100
+    ok = json.loads((tmp_path / "ok" / "knowledge.json").read_text())
+    assert ok["step"] == 699
     state = json.loads((final / "world.json").read_text())
     corrupt = [
         ("{not json", "core2d", "corrupt world state"),

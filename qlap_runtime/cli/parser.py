@@ -81,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--steps", type=positive_int, default=250_000,
                      help="agent steps to run (default: 250000, the reference's exploration, "
                           "§7.2: a few minutes here; in the terminal UI q quits at any time "
-                          "and keeps what was learned)")
+                          "and keeps what was learned); with --resume, the steps after the "
+                          "checkpoint's: step-0200000 with --steps 50000 ends at step 250,000")
     run.add_argument("--seed", type=count, default=None,
                      help="random seed (default: 0; with --resume, the checkpoint's, which a "
                           "different --seed cannot change)")

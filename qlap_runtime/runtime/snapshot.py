@@ -84,10 +84,8 @@ def save_learner_snapshot(learner: ModelLearner, directory: Path) -> None:
     meta, arrays = learner_state(learner)
     path = Path(directory) / LEARNER_FRAME
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
+    with open(tmp, "wb") as f:          # not fsynced: a snapshot (docs/decisions.md 124)
         write_frame(f, {"meta": meta}, arrays)
-        f.flush()
-        os.fsync(f.fileno())
     os.replace(tmp, path)
 
 
@@ -119,8 +117,8 @@ def save_perception(per: Perception, directory: Path, name: str = "perception") 
     meta, arrays = per.to_state()
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    atomic_write_bytes(directory / f"{name}.npz", buf.getvalue())
-    atomic_write_json(directory / f"{name}.json", meta)
+    atomic_write_bytes(directory / f"{name}.npz", buf.getvalue(), durable=False)
+    atomic_write_json(directory / f"{name}.json", meta, durable=False)
 
 
 def load_perception(per: Perception, directory: Path, name: str = "perception") -> None:
@@ -149,12 +147,14 @@ def write_snapshot(root: Path, actor: str, step: int, state: dict[str, Any],
     if save is not None:
         save(tmp)
     atomic_write_json(tmp / "actor.json", {"format": FORMAT, "version": VERSION,
-                                           "actor": actor, "step": int(step), "state": state})
+                                           "actor": actor, "step": int(step), "state": state},
+                      durable=False)
     if final.exists():          # written before a restart: the same state (determinism)
         shutil.rmtree(tmp)
     else:
         os.replace(tmp, final)
-    atomic_write_json(base / "latest.json", {"step": int(step), "path": final.name})
+    atomic_write_json(base / "latest.json", {"step": int(step), "path": final.name},
+                      durable=False)
     older = sorted((d for d in base.iterdir() if d.is_dir() and d.name != final.name
                     and d.name.startswith("step-")), reverse=True)
     for old in older[max(0, keep):]:

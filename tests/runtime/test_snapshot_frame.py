@@ -56,3 +56,28 @@ def test_a_cut_frame_is_a_one_line_error(tmp_path):
     path.write_bytes(path.read_bytes()[:-10])
     with pytest.raises(CheckpointError, match="unreadable learner snapshot"):
         load_learner_snapshot(tmp_path)
+
+
+def test_a_snapshot_is_atomic_but_not_fsynced_and_a_checkpoint_is_both(tmp_path, monkeypatch):
+    """docs/decisions.md 124: only a restart on the live machine reads a snapshot, so its files
+    skip the fsync (the learners' process waited on it every snapshot_every steps); the
+    checkpoints that ``--resume`` reads stay durable."""
+    import os
+
+    from qlap_runtime.qlap.checkpoint import atomic_write_json
+    from qlap_runtime.runtime.snapshot import latest_snapshot, write_snapshot
+
+    synced: list[int] = []
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real(fd))[1])
+    learner = learner_after(150)
+    final = write_snapshot(tmp_path / "snaps", "contingency", 149, {"last": 149},
+                           lambda d: save_learner_snapshot(learner, d))
+    assert synced == []
+    assert latest_snapshot(tmp_path / "snaps", "contingency") == (149, final)
+    assert same_state(load_learner_snapshot(final), learner)
+    assert not [p for p in final.parent.rglob("*") if p.name.endswith(".tmp")]
+    atomic_write_json(tmp_path / "summary.json", {"steps": 1})
+    assert len(synced) == 1
+    save_learner(learner, tmp_path / "ckpt")                  # a checkpoint's learner files
+    assert len(synced) > 1

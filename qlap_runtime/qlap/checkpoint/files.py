@@ -36,12 +36,14 @@ class CheckpointError(ValueError):
 
 
 @contextlib.contextmanager
-def atomic_file(path: Path) -> Iterator[BinaryIO]:
+def atomic_file(path: Path, durable: bool = True) -> Iterator[BinaryIO]:
     """A binary file that becomes ``path`` when the block ends without an error: written as a
-    temporary file in the same directory, flushed to disk, then renamed over ``path``; on an
-    error the temporary file is removed and ``path`` is left as it was. The file gets the
-    permissions an ``open(path, "w")`` would (0666 less the umask), not mkstemp's 0600: results
-    are for other users too."""
+    temporary file in the same directory, flushed to disk (``durable``), then renamed over
+    ``path``; on an error the temporary file is removed and ``path`` is left as it was. The file
+    gets the permissions an ``open(path, "w")`` would (0666 less the umask), not mkstemp's 0600:
+    results are for other users too. ``durable`` False skips the ``fsync``: still all or
+    nothing for a process that dies, not for the machine (an actor's snapshot, which only a
+    restart on the live machine reads, docs/decisions.md 124)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -50,7 +52,8 @@ def atomic_file(path: Path) -> Iterator[BinaryIO]:
         with os.fdopen(fd, "wb") as f:
             yield f
             f.flush()
-            os.fsync(f.fileno())
+            if durable:
+                os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -69,15 +72,16 @@ def _read_umask() -> int:
 _UMASK = _read_umask()
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and a rename."""
-    with atomic_file(path) as f:
+def atomic_write_bytes(path: Path, data: bytes, durable: bool = True) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same directory and a rename
+    (``durable``: as :func:`atomic_file`)."""
+    with atomic_file(path, durable) as f:
         f.write(data)
 
 
-def atomic_write_json(path: Path, obj: Any) -> None:
+def atomic_write_json(path: Path, obj: Any, durable: bool = True) -> None:
     """Human-readable JSON (indented, sorted keys): summary.json, knowledge.json."""
-    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=True).encode())
+    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=True).encode(), durable)
 
 
 def write_compact_json(path: Path, obj: Any) -> None:
