@@ -169,6 +169,10 @@ class IACChoice:
     weights: tuple[float, ...] = ()
     """Normalised probabilities of all applicable actions, in their order."""
 
+    def __deepcopy__(self, memo: dict) -> IACChoice:
+        """Immutable (frozen, of numbers and tuples): its own copy (docs/decisions.md 101)."""
+        return self
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return {"step": self.step, "action": list(self.action) if self.action else None,
