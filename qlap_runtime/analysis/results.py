@@ -140,8 +140,9 @@ def runs_at_a_time(run_dir: Path) -> int | None:
             lines = [f.readline(), f.readline()]
     except OSError:
         return None
-    m = re.fullmatch(re.escape(AT_A_TIME).replace(r"\{n\}", r"(\d+)"), lines[1].strip())
-    return int(m.group(1)) if m else None
+    prefix = AT_A_TIME.split("{n}")[0]
+    n = lines[1].strip().removeprefix(prefix)
+    return int(n) if lines[1].startswith(prefix) and n.isdigit() else None
 
 
 def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs: int,
@@ -153,8 +154,9 @@ def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs
     runs_dir = Path(runs_dir)
     dirs = {s: runs_dir / run_dir_name(world, s) for s in seeds}
     todo = [s for s in seeds if read_summary(dirs[s]) is None]
+    at_a_time = max(1, min(jobs, len(todo)))
     echo(f"runs: {len(seeds) - len(todo)} of {len(seeds)} already done in {runs_dir}"
-         + (f"; {len(todo)} to run, {min(jobs, len(todo))} at a time" if todo else ""))
+         + (f"; {len(todo)} to run, {at_a_time} at a time" if todo else ""))
     if not todo:
         return [dirs[s] for s in seeds]
     runs_dir.mkdir(parents=True, exist_ok=True)
@@ -164,15 +166,14 @@ def run_seeds(world: str, seeds: Sequence[int], steps: int, runs_dir: Path, jobs
         log = runs_dir / f"{dirs[seed].name}.log"
         t0 = time.perf_counter()
         with open(log, "w") as f:
-            f.write(shlex.join(cmd) + "\n" + AT_A_TIME.format(n=max(1, min(jobs, len(todo))))
-                    + "\n")
+            f.write(shlex.join(cmd) + "\n" + AT_A_TIME.format(n=at_a_time) + "\n")
             f.flush()
             rc = subprocess.run([python, "-m", "qlap_runtime.cli", *cmd[1:]], stdout=f,
                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
         return rc, time.perf_counter() - t0
 
     failed = []
-    with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(todo)))) as pool:
+    with ThreadPoolExecutor(max_workers=at_a_time) as pool:
         futures = {pool.submit(one, s): s for s in todo}
         for i, fut in enumerate(as_completed(futures), 1):
             seed = futures[fut]

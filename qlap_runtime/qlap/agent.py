@@ -31,7 +31,7 @@ from .babble import Babbler
 from .call_list import FAIL, RUN, SUCCESS, CallList, Frame
 from .curiosity import IACChoice, action_weight, choose_action, choose_plan
 from .learner import ModelLearner
-from .mdp import Role, SarsaLambda
+from .mdp import Role
 from .params import Params
 from .perception import Percept
 from .plan_compilation import PlanCompilation
@@ -428,10 +428,7 @@ class Agent(PlanCompilation, CallList):
         if self.model_memo is not None:
             memo[id(self.model_memo)] = None
         for plan in self.plans.values():
-            c = plan.snapshot()
-            if plan.sarsa is not None:
-                c.sarsa = SarsaLambda(c.q, plan.params, plan.sarsa.e.copy())
-            memo[id(plan)] = c
+            memo[id(plan)] = plan.snapshot(traces=True)
         return copy.deepcopy(self, memo)
 
     def to_state(self) -> dict[str, Any]:

@@ -285,15 +285,17 @@ class Plan:
         if dyna:
             dyna_sweep(self.q, self.model, self.params)
 
-    def snapshot(self) -> Plan:
+    def snapshot(self, traces: bool = False) -> Plan:
         """A copy that stays as this plan is now while this one goes on learning: the arrays
         written in place (Q by Sarsa and Dyna, the stored calls and the second-order counts by
         :meth:`record_call`) are its own; everything else is replaced, never written, by the
-        plan's methods, so it is shared."""
+        plan's methods, so it is shared. Its Sarsa traces are the executor's (none), unless
+        ``traces``: a copy of them (a checkpoint saves them)."""
         c = copy.copy(self)
         c.q, c.call_x, c.call_ok = self.q.copy(), self.call_x.copy(), self.call_ok.copy()
         c.cpt_s, c.cpt_f = self.cpt_s.copy(), self.cpt_f.copy()
-        c.sarsa = None                           # its traces are the executor's
+        c.sarsa = None if not traces or self.sarsa is None \
+            else SarsaLambda(c.q, self.params, self.sarsa.e.copy())
         return c
 
     # -- second-order statistics (§5.4) ------------------------------------------------------

@@ -4,8 +4,8 @@
 A periodic checkpoint (``save_step_checkpoint``: JSON, npz and the lzma of the histories, then
 the retention) takes about 0.5 s for a 30,000-step core agent and 2.2 s for a 250,000-step one;
 written from the loop, it was a quarter of the synchronous loop's time late in a long run.
-:class:`CheckpointWriter` takes a copy of the agent on the loop (:func:`checkpoint_copy`: the
-agent's own ``checkpoint_copy``, 0.07 s at 250,000 core steps, where a deep copy took 0.2 s,
+:class:`CheckpointWriter` takes a copy of the agent on the loop (``Agent.checkpoint_copy``,
+0.085 s at 250,000 core steps, where a deep copy took 0.2 s,
 docs/decisions.md 125) and writes the copy in such a thread, most of it with the GIL released
 (lzma, deflate, ``fsync``).
 :meth:`Background.wait` joins the job in flight and raises its error, before the next job and
@@ -14,7 +14,6 @@ before the run's final files.
 
 from __future__ import annotations
 
-import copy
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -61,13 +60,6 @@ class Background:
         return error
 
 
-def checkpoint_copy(agent: Any) -> Any:
-    """What :class:`CheckpointWriter` writes while ``agent`` goes on: its ``checkpoint_copy()``
-    (an :class:`~qlap_runtime.qlap.agent.Agent`), else a deep copy."""
-    own = getattr(agent, "checkpoint_copy", None)
-    return own() if callable(own) else copy.deepcopy(agent)
-
-
 class CheckpointWriter:
     """A run's periodic checkpoints ``step-N``, written off the caller's loop: :meth:`save`
     copies the agent now and writes the copy in a :class:`Background` thread; the files are
@@ -88,7 +80,7 @@ class CheckpointWriter:
             return None
         self.background.wait()                # the write before: one copy alive at a time
         if copy_agent:
-            self.background.start(save_step_checkpoint, checkpoint_copy(agent), root, step,
+            self.background.start(save_step_checkpoint, agent.checkpoint_copy(), root, step,
                                   world, keep, world_state)
         else:
             save_step_checkpoint(agent, root, step, world, keep, world_state)

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..qlap.checkpoint import (
     CheckpointError,
+    atomic_file,
     atomic_write_bytes,
     atomic_write_json,
     check_learner,
@@ -82,11 +83,8 @@ def save_learner_snapshot(learner: ModelLearner, directory: Path) -> None:
     restart reads it: the checkpoint's compressed npz cost 0.3 s a write at 25,000 core steps,
     the frame 0.02–0.03 s (docs/decisions.md 90)."""
     meta, arrays = learner_state(learner)
-    path = Path(directory) / LEARNER_FRAME
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:          # not fsynced: a snapshot (docs/decisions.md 124)
+    with atomic_file(Path(directory) / LEARNER_FRAME, durable=False) as f:   # decision 124
         write_frame(f, {"meta": meta}, arrays)
-    os.replace(tmp, path)
 
 
 def load_learner_snapshot(directory: Path) -> ModelLearner:

@@ -13,7 +13,6 @@ from qlap_runtime.agent_run import run_agent
 from qlap_runtime.qlap import Params
 from qlap_runtime.qlap.checkpoint import save_agent
 from qlap_runtime.qlap.checkpoint.files import read_npz
-from qlap_runtime.runtime.background import checkpoint_copy
 
 
 def saved(agent, directory: Path) -> dict[str, object]:
@@ -38,7 +37,7 @@ def test_the_checkpoint_copy_saves_what_the_agent_saves_while_it_goes_on(tmp_pat
         assert agent.plans and any(p.sarsa is not None and p.sarsa.e.any()
                                    for p in agent.plans.values())
         live = saved(agent, tmp_path / "live")
-        c = checkpoint_copy(agent)
+        c = agent.checkpoint_copy()
         assert type(c) is type(agent) and c is not agent
         assert saved(c, tmp_path / "copy") == live
         assert saved(copy.deepcopy(agent), tmp_path / "deep") == live
