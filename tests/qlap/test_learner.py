@@ -267,3 +267,28 @@ def test_a_landmark_inside_the_quantity_space_keeps_two_magnitude_dbns_per_value
                       for d in learner.find_dbns(kind="magnitude") if d.consequent.var == x)
         assert keys == sorted({(v, 1) for v in range(1, size)}
                               | {(v, -1) for v in range(size - 1)})
+
+
+def test_magnitude_dbns_learn_from_the_motion_observed():
+    # Decisions 11 and 126 (§4.5): r± of (x, q) is activated when ẋ → [±] is observed with x on
+    # the near side of q, succeeds when x reaches q, fails when ẋ leaves [±] first. x's
+    # landmarks at [3, 3.1] and [6, 6.1] give values 0 (−∞, 3), 1, 2 (3.1, 6), 3, 4 (6.1, +∞).
+    # x rises from 1.0 (value 0) to 3.5 (value 2) and stops, then falls from 3.5 to 2.5.
+    from qlap_runtime.qlap.delta import AddLandmark, Delta, delta_version
+
+    learner = ModelLearner(SPECS, Params())
+    x = learner.table.index("x")
+    for n, lb in enumerate((3.0, 6.0), start=1):
+        learner.apply_delta(Delta(delta_version(n, "landmarks"), n, n,
+                                  (AddLandmark(x, lb, lb + 0.1, "event", n),)))
+    path = (1.0, 1.0, 1.0, 1.5, 2.0, 2.5, 3.05, 3.5, 3.5, 3.5, 3.5, 3.0, 2.5, 2.5)
+    for t, value in enumerate(path):
+        learner.observe(t, {"u": 0.0, "x": value})
+    outcome = {(d.consequent.value, d.consequent.direction): (int(d.cpt_s.sum()),
+                                                             int(d.cpt_f.sum()))
+               for d in learner.find_dbns(kind="magnitude") if d.consequent.var == x}
+    # The onset ẋ → [+] at step 3 (x in value 0) activates r⁺ of every value above: 1 and 2
+    # are reached (successes), 3 and 4 are not before ẋ → [0] at step 8 (failures). The onset
+    # ẋ → [−] at step 11 finds x at 3.0, in value 1: only r⁻ of value 0 starts, and succeeds.
+    assert outcome == {(1, 1): (1, 0), (2, 1): (1, 0), (3, 1): (0, 1), (4, 1): (0, 1),
+                       (0, -1): (1, 0), (1, -1): (0, 0), (2, -1): (0, 0), (3, -1): (0, 0)}
