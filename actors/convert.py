@@ -76,7 +76,10 @@ def rejection_as_sent(per: Perception, t: int, msg: Any,
     """The reason the synchronous agent gives for rejecting ``sense(t)``: ±inf travels as ±float
     max (:func:`sense_values`), so the rejection is checked again with them restored (the state
     is unchanged by a rejected observation)."""
-    x = per.vector(msg.values)
+    try:
+        x = per.vector(msg.values)
+    except InvalidObservation:                  # an unknown name, a value not a number
+        return exc
     huge = np.abs(x) == sys.float_info.max
     if not huge.any():
         return exc

@@ -152,3 +152,9 @@ def test_eval_trace_records_every_step_and_changes_nothing(tmp_path):
     r = qlap("eval", "--world", "pong", "--policy", "random", "--task", "pong_volley",
              "--trace", str(trace))
     assert r.returncode == 2 and "a trace needs --policy qlap" in r.stderr
+    # An existing file is never overwritten (it might be a checkpoint's own agent.json).
+    before = trace.read_bytes()
+    r = qlap("eval", "--checkpoint", ck, "--task", "pong_volley", "--trials", "1",
+             "--trace", str(trace))
+    assert r.returncode == 2 and f"--trace {trace}: exists: give a new file" in r.stderr
+    assert trace.read_bytes() == before

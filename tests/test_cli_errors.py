@@ -56,6 +56,15 @@ def test_run_out_naming_an_existing_file(capsys, tmp_path):
     assert_one_line(code, err, str(afile), "not a directory")
 
 
+def test_an_executor_actor_never_writes_into_another_run(capsys, tmp_path, closed_port):
+    # Its outputs would truncate the run's metrics and replace its final checkpoint.
+    (tmp_path / "metrics.jsonl").write_text('{"step": 1}\n')
+    code, _, err = qlap(capsys, "actor", "executor", "--connect",
+                        f"tcp/127.0.0.1:{closed_port}", "--run", "zz", "--out", str(tmp_path))
+    assert_one_line(code, err, f"--out {tmp_path} already holds a run (metrics.jsonl)")
+    assert code == 2 and (tmp_path / "metrics.jsonl").read_text() == '{"step": 1}\n'
+
+
 def test_run_record_into_a_missing_directory(capsys, tmp_path):
     target = tmp_path / "missing" / "x.mcap"
     code, _, err = qlap(capsys, "run", "--headless", "--quiet", "--steps", "10",

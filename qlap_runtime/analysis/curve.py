@@ -111,9 +111,12 @@ class CurveRow:
 def read_rows(path: Path) -> list[CurveRow]:
     """The rows of a curve.csv (none if it does not exist)."""
     try:
-        text = Path(path).read_text()
+        text = Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         return []
+    except UnicodeDecodeError as exc:
+        raise AnalysisError(f"{path}: not a curve.csv (not UTF-8 text: {exc.reason} at byte "
+                            f"{exc.start})") from None
     reader = csv.DictReader(io.StringIO(text))
     if reader.fieldnames is None or not set(CSV_FIELDS) <= set(reader.fieldnames):
         raise AnalysisError(f"{path}: not a curve.csv (columns {', '.join(CSV_FIELDS)})")

@@ -46,6 +46,21 @@ def cmd_actor(args: argparse.Namespace) -> int:
         return 2
     finally:
         world.close()
+    if args.name == "executor" and args.out is not None:
+        # The executor writes the run's outputs (metrics, knowledge, checkpoints): never
+        # into another run's directory, whose files it would truncate or replace.
+        from ..runtime.outputs import OutputError, check_out
+        from .run_dir import run_files_in
+
+        if held := run_files_in(args.out):
+            print(f"qlap actor: --out {args.out} already holds a run ({', '.join(held)}); "
+                  "give a new directory", file=sys.stderr)
+            return 2
+        try:
+            check_out(args.out)
+        except OutputError as exc:
+            print(f"qlap actor: {exc}", file=sys.stderr)
+            return 2
     ctx = RunContext(args.run, args.world, args.steps, args.seed, params, out=args.out)
     print(f"qlap actor {args.name}: run {args.run}, connecting to {', '.join(args.connect)}; "
           "then it waits until every actor of the run has joined (up to an hour; Ctrl-C to "

@@ -16,7 +16,10 @@ def _trace_problem(path: Path, policy: str) -> str | None:
     """Why ``qlap eval --trace path`` cannot be written, before any trial runs; None if it can."""
     if policy != "qlap":
         return "a trace needs --policy qlap"
-    return file_problem(path)
+    problem = file_problem(path)
+    if problem is None and path.exists():
+        problem = "exists: give a new file (a trace is never overwritten)"
+    return problem
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

@@ -173,7 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--trace", type=path_arg, default=None, metavar="FILE.jsonl",
                     help="write every step of the trials as JSON lines: the goal, the agent's "
                          "mode and call list, whether a plan waits with the motors held, "
-                         "the motor command; then each trial's reward (docs/analysis.md)")
+                         "the motor command; then each trial's reward (docs/analysis.md); a "
+                         "new file, never overwritten")
     ev.add_argument("--json", action="store_true", help="print the result as JSON")
 
     curve = sub.add_parser(
@@ -275,7 +276,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="length of the initial motor-babbling period (default: 20000, "
                             "§6.1)")
     actor.add_argument("--out", type=path_arg, default=None,
-                       help="(executor) where to write knowledge.json, checkpoints")
+                       help="(executor) where to write knowledge.json, checkpoints: a new "
+                            "directory (one holding a run is refused)")
 
     tui_p = sub.add_parser("tui", help="attach the terminal UI to a running agent",
                            description="Open the Textual UI on a run reachable through a Zenoh "

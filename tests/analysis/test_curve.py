@@ -91,6 +91,17 @@ def test_csv_round_trip(tmp_path):
     assert not list(tmp_path.glob(".curve.csv.*"))                # no temporary left
 
 
+def test_a_damaged_curve_csv_is_a_one_line_error(tmp_path):
+    path = tmp_path / "curve.csv"
+    path.write_bytes(b"policy,run\n\xff\xfe garbage\n")
+    with pytest.raises(AnalysisError, match=r"curve.csv: not a curve.csv \(not UTF-8 text: "
+                                            r"invalid start byte at byte 11\)"):
+        read_rows(path)
+    path.write_text("run,step\nx,1\n")
+    with pytest.raises(AnalysisError, match=r"not a curve.csv \(columns run, step, task"):
+        read_rows(path)
+
+
 def test_curve_of_one_run_then_of_two_resumes(runs, tmp_path):
     s1, s2 = (shutil.copytree(r, tmp_path / r.name) for r in runs)
     lines: list[str] = []
