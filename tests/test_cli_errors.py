@@ -73,6 +73,22 @@ def test_run_record_into_a_missing_directory(capsys, tmp_path):
     assert not (tmp_path / "run").exists()          # refused before anything started
 
 
+def test_a_recording_on_a_full_disk_stops_and_the_run_goes_on(tmp_path):
+    # The recording streams to x.mcap.part, here a device that refuses every write (/dev/full,
+    # ENOSPC): the run still writes what it learned, and says where the recording stopped.
+    target, out = tmp_path / "x.mcap", tmp_path / "run"
+    (tmp_path / "x.mcap.part").symlink_to("/dev/full")
+    r = qlap_process("run", "--headless", "--quiet", "--steps", "600", "--babble-steps", "300",
+                     "--out", str(out), "--record", str(target))
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    last = r.stderr.strip().splitlines()[-1]        # after the run's own header line
+    assert f"--record {target}: the recording stopped after" in last
+    assert "No space left on device" in last and "the run went on" in last
+    assert (out / "knowledge.json").is_file() and (out / "checkpoints" / "final").exists()
+    assert json.loads((out / "summary.json").read_text())["recording"]["error"]
+    assert not target.exists()
+
+
 @pytest.mark.parametrize("command", ["run", "record"])
 def test_an_existing_recording_is_never_overwritten(capsys, tmp_path, command):
     target = tmp_path / "old.mcap"

@@ -236,6 +236,10 @@ async def _record(cfg: zenoh.Config, args: argparse.Namespace) -> int:
             + (f"stops after {args.duration:g} s or at Ctrl-C" if args.duration is not None
                else "Ctrl-C to stop"))
         nursery.cancel_scope.cancel()
+    if summary.error:
+        print(f"qlap record: --out {args.out}: the recording stopped after {summary.messages:,} "
+              f"messages ({summary.error}); they are in {args.out}.part", file=sys.stderr)
+        return 1
     print(f"qlap record: {summary.messages} messages on {len(summary.by_topic)} topics and "
           f"{summary.scenes} scene updates of {len(summary.runs)} run(s) to {summary.path} "
           f"({summary.rejected} rejected)", file=sys.stderr)

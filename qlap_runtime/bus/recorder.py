@@ -41,6 +41,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
 from .. import __version__
+from ..errors import one_line
 from . import keys
 from .bridge import Received, RejectionCounter, TrioSubscriber, cancel_when
 from .config import client_config
@@ -98,6 +99,10 @@ class RecordSummary:
     """``foxglove.SceneUpdate`` messages written on ``/qlap/scene``."""
     runs: tuple[str, ...] = ()
     """Run ids recorded (one metadata record each)."""
+    error: str = ""
+    """Why the recording stopped before the end (a full disk): "" when the file is whole.
+    What was written before is left in ``NAME.part`` (no MCAP footer) and NAME is not
+    written; the run itself goes on."""
 
 
 def run_metadata(run_id: str, info: Mapping[str, Any] | None = None, *,
@@ -308,27 +313,49 @@ async def record(source: Source, run_id: str | None, out_path: Path | str,
     with ExitStack() as stack:
         stack.callback(lambda: whole and os.replace(part, out_path))
         session = _session(source, stack)
-        f = stack.enter_context(open(part, "wb"))  # noqa: ASYNC230 - a local file, streamed
+        f = open(part, "wb")  # noqa: ASYNC230 - a local file, streamed
+
+        def close() -> None:
+            """Closed before the rename: a write the buffer held fails here on a full disk."""
+            nonlocal whole
+            try:
+                f.close()
+            except OSError as exc:
+                summary.error, whole = summary.error or one_line(exc), False
+
+        stack.callback(close)
         sink = McapSink(f, info=info, scene_hz=scene_hz)
         try:
             sub = stack.enter_context(
                 TrioSubscriber(session, keys.run_pattern(run_id), counter=counter))
             task_status.started()
 
-            def write(batch: list[Received]) -> None:
-                for r in batch:
-                    sink.write(r)
-                    summary.by_topic[r.key] = summary.by_topic.get(r.key, 0) + 1
-                summary.messages += len(batch)
+            def write(batch: list[Received]) -> bool:
+                """False once the file refuses a write (the recording stops there)."""
+                try:
+                    for r in batch:
+                        sink.write(r)
+                        summary.by_topic[r.key] = summary.by_topic.get(r.key, 0) + 1
+                        summary.messages += 1
+                except OSError as exc:         # its caller says so (the run goes on)
+                    summary.error = one_line(exc)
+                return not summary.error
 
             async with trio.open_nursery() as nursery:
                 nursery.start_soon(cancel_when, stop_event, nursery.cancel_scope)
                 async for batch in sub:  # a batch is taken whole: cancellation loses nothing
-                    write(batch)
-            write(sub.receive_nowait())
+                    if not write(batch):
+                        nursery.cancel_scope.cancel()     # the run goes on without it
+                        break
+            if not summary.error:
+                write(sub.receive_nowait())
         finally:
-            sink.finish()
-            whole = True
+            if not summary.error:
+                try:
+                    sink.finish()
+                except OSError as exc:          # no room for the footer
+                    summary.error = one_line(exc)
+            whole = not summary.error
     summary.rejected = counter.total - before
     summary.scenes = sink.scenes
     summary.runs = tuple(sink.runs)

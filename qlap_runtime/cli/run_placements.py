@@ -261,6 +261,13 @@ def run_actors(args: argparse.Namespace, world, params) -> int:
         print(f"qlap run: interrupted after {summary['steps']:,} steps; what was learned is "
               f"written{go_on}", file=sys.stderr)
         return 130
+    recording = summary.get("recording") or {}
+    if recording.get("error"):
+        print(f"qlap run: --record {args.record}: the recording stopped after "
+              f"{recording['messages']:,} messages ({recording['error']}); they are in "
+              f"{args.record}.part; the run went on and its outputs are written",
+              file=sys.stderr)
+        return 1
     return 0
 
 

@@ -19,7 +19,6 @@ import socket
 import threading
 import time
 from collections.abc import Callable
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -132,8 +131,10 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
     ctx, auth = _listen_auth(ctx, listen)
     watchdog = Watchdog(ctx.board, ctx.stall_s or DEFAULT_STALL_S)
     t0 = time.perf_counter()
+    recording: dict[str, Any] = {}
     try:
-        await _embedded_actors(ctx, listen, auth, record, extra, watchers, watchdog, results)
+        await _embedded_actors(ctx, listen, auth, record, extra, watchers, watchdog, results,
+                               recording)
     except BaseException:
         if ctx.out is not None:
             from actors.checkpoint_parts import discard_incomplete, place_final_parts
@@ -141,14 +142,22 @@ async def run_embedded_async(ctx: Any, listen: tuple[str, ...] = (),
             place_final_parts(Path(ctx.out) / "checkpoints")   # the world's, into final
             discard_incomplete(Path(ctx.out) / "checkpoints")  # only whole checkpoints stay
         raise
-    return _finish(ctx, "embedded", results, time.perf_counter() - t0)
+    return _finish(ctx, "embedded", results, time.perf_counter() - t0,
+                   {"recording": recording} if recording else None)
 
 
 async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, Any],
                            record: Path | None, extra: tuple, watchers: tuple, watchdog: Any,
-                           results: dict[str, Any]) -> None:
-    """The body of :func:`run_embedded_async`: the actors' nursery on one session."""
+                           results: dict[str, Any], recording: dict[str, Any]) -> None:
+    """The body of :func:`run_embedded_async`: the actors' nursery on one session; what the
+    recorder wrote goes into ``recording`` (:func:`recording_summary`)."""
     from ..bus.recorder import record as record_bus
+
+    async def recorder(session: Any, stop: trio.Event,
+                       task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED) -> None:
+        written = await record_bus(session, ctx.run_id, record, stop, info=ctx.to_json(),
+                                   task_status=task_status)
+        recording.update(recording_summary(written))
 
     with zenoh.open(embedded_config(listen, **auth)) as session:
         ready = trio.Event()
@@ -159,8 +168,7 @@ async def _embedded_actors(ctx: Any, listen: tuple[str, ...], auth: dict[str, An
 
         async with trio.open_nursery() as outer:
             if record is not None:
-                await outer.start(partial(record_bus, info=ctx.to_json()), session,
-                                  ctx.run_id, record, stop)
+                await outer.start(recorder, session, stop)
             for watcher in watchers:
                 outer.start_soon(watcher, session, ctx, stop)
             outer.start_soon(_watch_stalls, watchdog, stop)
@@ -439,6 +447,8 @@ def _run_processes(ctx: Any, listen_port: int | None, poll: float, record: Path 
                 recorder.stop()
         results = sup.results()
     report = {**sup.report(), "groups": list(sup.groups)}
+    if recorder is not None and recorder.summary is not None:
+        report["recording"] = recording_summary(recorder.summary)
     return _finish(ctx, "processes", results, time.perf_counter() - t0, report)
 
 
@@ -476,6 +486,12 @@ def remove_stale_run_dirs(root: Path | None = None) -> list[Path]:
         except (OSError, ValueError, IndexError):
             continue
     return removed
+
+
+def recording_summary(written: Any) -> dict[str, Any]:
+    """``summary.json``'s ``recording``: the MCAP file, the messages written and, when the
+    recording stopped early (a full disk), why (the run itself went on)."""
+    return {"path": str(written.path), "messages": written.messages, "error": written.error}
 
 
 class _Recorder:

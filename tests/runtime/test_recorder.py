@@ -143,3 +143,26 @@ def test_read_mcap_reads_files_written_before_the_topics_were_stable(tmp_path):
     assert read_mcap(path) == [("qlap/old-run/sense", Sense(t, {"x": 1.0}), t + 1)
                                for t in range(3)]
     assert read_metadata(path) == []
+
+
+async def test_a_full_disk_ends_the_recording_not_the_caller(embedded, run_id, tmp_path):
+    # run.mcap.part on a device that refuses every write (/dev/full: ENOSPC), as a full disk
+    # does: the recorder returns with the reason, run.mcap is never written (not torn), and
+    # its caller (the run) goes on.
+    out = tmp_path / "run.mcap"
+    (tmp_path / "run.mcap.part").symlink_to("/dev/full")
+    msgs = _published(400)
+    stop = trio.Event()
+    summary_box: list = []
+    async with trio.open_nursery() as nursery:
+        await nursery.start(_record_task, embedded, run_id, out, stop, summary_box)
+        pubs = {topic: Publisher(embedded, run_id, topic) for topic in {t for t, _ in msgs}}
+        for topic, msg in msgs:
+            pubs[topic].put(msg)
+        await trio.sleep(0.2)
+        stop.set()
+    for p in pubs.values():
+        p.close()
+    [summary] = summary_box
+    assert "No space left on device" in summary.error
+    assert not out.exists()
