@@ -97,6 +97,14 @@ def test_qlap_run_resume_restores_the_world_and_refuses_a_corrupt_state(capsys,
     code, _, err = qlap(capsys, *base, "--steps", "100", "--resume", str(final),
                         "--out", str(tmp_path / "old"))
     assert code == 0 and "holds no world state" in err
+    # Its variables edited: not "learned in world 'core2d', not --world 'core2d'".
+    meta = json.loads((final / "learner.json").read_text())
+    meta["variables"][0]["name"] = "zz"
+    (final / "learner.json").write_text(json.dumps(meta))
+    code, _, err = qlap(capsys, *base, "--steps", "100", "--resume", str(final),
+                        "--out", str(tmp_path / "edited"))
+    assert_one_line(code, err, "its variables are not those of world 'core2d' (which has no zz)",
+                    "a damaged checkpoint")
 
 
 def test_load_world_state_names_the_file(tmp_path) -> None:

@@ -93,11 +93,14 @@ def world_mismatch(checkpoint: Path, world: Any, spec: str) -> str | None:
     if names == [v.name for v in world.variables]:
         return None
     learned = recorded_world(checkpoint)
-    where = f"world {learned!r}" if learned else "another world"
     missing = [n for n in names if n not in {v.name for v in world.variables}]
-    return (f"{checkpoint} was learned in {where}, not --world {spec!r}"
-            + (f" (which has no {', '.join(missing[:3])}{', …' if len(missing) > 3 else ''})"
-               if missing else " (its variables differ)"))
+    detail = (f" (which has no {', '.join(missing[:3])}{', …' if len(missing) > 3 else ''})"
+              if missing else " (its variables differ)")
+    if learned == spec:             # the checkpoint names this world but its variables are not
+        return (f"{checkpoint}: its variables are not those of world {spec!r}{detail}: a "
+                "damaged checkpoint, or one from another version of the world")
+    where = f"world {learned!r}" if learned else "another world"
+    return f"{checkpoint} was learned in {where}, not --world {spec!r}{detail}"
 
 
 def say(*values: object) -> None:
