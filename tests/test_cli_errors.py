@@ -110,6 +110,13 @@ def test_run_record_into_a_directory_that_refuses_files(capsys, tmp_path):
     assert not (tmp_path / "run").exists()
 
 
+def test_snapshot_out_must_be_a_png(capsys, tmp_path):
+    target = tmp_path / "s.jpg"
+    code, _, err = qlap(capsys, "snapshot", "--out", str(target))
+    assert_one_line(code, err, f"--out {target}: a snapshot is a PNG image")
+    assert not target.exists()
+
+
 def test_snapshot_out_into_a_missing_directory(capsys, tmp_path):
     target = tmp_path / "missing" / "scene.png"
     code, _, err = qlap(capsys, "snapshot", "--out", str(target))

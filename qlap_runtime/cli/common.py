@@ -27,6 +27,9 @@ def check_args(args: argparse.Namespace) -> None:
     value = getattr(args, attr, None) if attr else None
     if value is not None:
         problem = file_problem(Path(value))
+        if problem is None and args.command == "snapshot" \
+                and Path(value).suffix.lower() != ".png":
+            problem = "a snapshot is a PNG image: give a file ending in .png"
         if problem is None and args.command != "snapshot" and Path(value).exists():
             problem = "exists: give a new file (a recording is never overwritten)"
         if problem is not None:

@@ -244,7 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
     snap.add_argument("--world", default="core",
                       help="world spec, e.g. core:secondary:aligned")
     snap.add_argument("--out", required=True, metavar="FILE.png",
-                      help="PNG file to write (its directory must exist)")
+                      help="PNG file to write (its directory must exist; an existing file "
+                           "is replaced)")
     snap.add_argument("--seed", type=count, default=0, help="seed of the world's placement")
 
     from ..experiments.cli import add_experiment_command
