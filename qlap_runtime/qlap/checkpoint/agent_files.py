@@ -6,13 +6,16 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .checks import bad, check_shape, is_int, numeric_array, one_line
 from .files import (
     CheckpointError,
+    InconsistentArray,
     group_arrays,
     pack_rows,
     read_npz,
@@ -140,8 +143,10 @@ def load_agent(directory: str | Path) -> Any:
     except FileNotFoundError as exc:
         raise CheckpointError(f"{directory}: not an agent checkpoint ({exc.filename} missing)"
                               ) from None
+    except InconsistentArray as exc:
+        raise bad(directory / "agent", exc.field, exc.why) from None
     except Exception as exc:
-        raise CheckpointError(f"{what}: corrupt agent checkpoint ({exc})") from None
+        raise CheckpointError(f"{what}: corrupt agent checkpoint ({one_line(exc)})") from None
     if not isinstance(meta, dict) or meta.get("format") != AGENT_FORMAT:
         raise CheckpointError(f"{jpath}: not a {AGENT_FORMAT} checkpoint")
     if meta.get("version") not in AGENT_READABLE_VERSIONS:
@@ -149,6 +154,8 @@ def load_agent(directory: str | Path) -> Any:
                               f"not supported (this build reads versions "
                               f"{', '.join(map(str, AGENT_READABLE_VERSIONS))})")
     check_agent(meta, learner, jpath)
+    where = directory / "agent"                     # agent.json + agent.npz, as "…/learner"
+    check_plan_arrays(meta, arrays, learner, where)
     part = "seed_state"                             # the field being read, for the error
     try:
         agent = Agent(learner.table, learner.params)
@@ -179,9 +186,19 @@ def load_agent(directory: str | Path) -> Any:
                 q = arrays[f"plan.{pid}.q"].astype(float)
                 q = np.where(np.isfinite(q), q, NOT_APPLICABLE)
             else:
-                q = _unpack_q(tuple(int(n) for n in d["q_shape"]),
-                              arrays[f"plan.{pid}.q_na"], arrays[f"plan.{pid}.q_values"])
+                try:
+                    q = _unpack_q(tuple(int(n) for n in d["q_shape"]),
+                                  arrays[f"plan.{pid}.q_na"], arrays[f"plan.{pid}.q_values"])
+                except ValueError:              # not as many values as applicable entries
+                    raise bad(where, f"plan.{pid}.q_values", f"does not hold a value for "
+                                                              f"each applicable entry of "
+                                                              f"plan.{pid}.q_na") from None
             agent.restore_plan(pl, q)           # the saved Q-table: no value iteration
+            shape = pl.model.applicable.shape if pl.model is not None else q.shape
+            if q.shape != shape:
+                raise bad(where, _q_field(d, arrays), f"is a Q-table of shape {q.shape}, "
+                                                       f"expected {shape} (plan {pid}'s states "
+                                                       f"× actions)")
             pl.q = q
             traces = arrays[f"plan.{pid}.traces"]
             pl.sarsa = SarsaLambda(pl.q, learner.params,
@@ -207,9 +224,95 @@ def load_agent(directory: str | Path) -> Any:
         agent.self_vars = set(meta["self_vars"])
         agent.step_count = int(meta["step_count"])
         agent.load_state(meta)                      # seen_applied
+    except CheckpointError:
+        raise
     except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
         raise CheckpointError(f"{jpath}: inconsistent agent checkpoint in "
-                              f"{part} ({type(exc).__name__}: {exc})") from None
+                              f"{part} ({type(exc).__name__}: {one_line(exc)})") from None
     return agent
+
+
+def _q_field(d: dict[str, Any], arrays: dict[str, np.ndarray]) -> str:
+    """The name of a saved plan's Q-table, as its checkpoint's version stores it."""
+    pid = d["id"]
+    if "q" in d:
+        return f"plans (id {pid}).q"                       # version 1: in agent.json
+    return f"plan.{pid}.q" if f"plan.{pid}.q" in arrays else f"plan.{pid}.q_values"
+
+
+def check_plan_arrays(meta: dict[str, Any], arrays: dict[str, np.ndarray], learner: Any,
+                      where: Path) -> None:
+    """The shapes of each plan's arrays (after :func:`check_agent`), from the learner's
+    quantity spaces and the plan's fields: its calls' ring (``Params.stored_activations`` rows
+    of the variables, ``call_n``/``call_head`` within it), its second-order CPT (one cell per
+    value combination of C_o, §5.4.1), its Q-table as stored (``q_shape``, the bit mask and
+    the values) and its traces (none, or the Q-table's shape). Whether the Q-table is the
+    shape of the plan's states × actions is known once the plan is rebuilt
+    (:func:`load_agent`). Shapes only: no scan of a large array."""
+    cap, n = learner.params.stored_activations, len(learner.table)
+    sizes = learner.perception.events.sizes
+    ids: set[int] = set()
+    for j, d in enumerate(meta["plans"]):
+        pid = d.get("id")
+        if not is_int(pid) or pid < 0 or pid in ids:
+            raise bad(where, f"plans[{j}].id", f"must be a new non-negative integer, got "
+                                                f"{pid!r}")
+        ids.add(pid)
+        ctx = d.get("context_o")
+        if not isinstance(ctx, list) or not all(is_int(v) and 0 <= v < n for v in ctx):
+            raise bad(where, f"plans[{j}].context_o", f"must list variables in 0..{n - 1}, "
+                                                       f"got {ctx!r}")
+        for field, top in (("call_n", cap), ("call_head", cap - 1)):
+            v = d.get(field)
+            if not is_int(v) or not 0 <= v <= top:
+                raise bad(where, f"plans[{j}].{field}", f"must be an integer in 0..{top} "
+                                                         f"(params.stored_activations), got "
+                                                         f"{v!r}")
+        cells = math.prod(sizes[v] for v in ctx)
+        ctx_why = f" (plan {pid}: C_o {ctx}, {cells} cells)"
+        for field, shape, why in (
+                ("call_x", (cap, n), " (params.stored_activations × variables)"),
+                ("call_ok", (cap,), " (params.stored_activations)"),
+                ("cpt_s", (cells,), ctx_why), ("cpt_f", (cells,), ctx_why)):
+            key = f"plan.{pid}.{field}"
+            check_shape(where, key, numeric_array(where, arrays, key), shape, why)
+        q_shape = _stored_q_shape(where, j, d, arrays)
+        key = f"plan.{pid}.traces"
+        traces = numeric_array(where, arrays, key)
+        if traces.size and q_shape is not None:
+            check_shape(where, key, traces, q_shape, " (the Q-table's)")
+    for key in arrays:
+        parts = key.split(".", 2)
+        if parts[0] == "plan" and len(parts) == 3 and not (parts[1].isdigit()
+                                                           and int(parts[1]) in ids):
+            raise bad(where, key, "belongs to no plan of the checkpoint")
+
+
+def _stored_q_shape(where: Path, j: int, d: dict[str, Any], arrays: dict[str, np.ndarray]
+                    ) -> tuple[int, ...] | None:
+    """The shape of plan ``d``'s stored Q-table, its arrays checked against it (None: a
+    version 1 table in agent.json, checked when read)."""
+    pid = d["id"]
+    if "q" in d:
+        return None
+    if f"plan.{pid}.q" in arrays:                                   # version 2
+        q = numeric_array(where, arrays, f"plan.{pid}.q")
+        if q.ndim != 2:
+            raise bad(where, f"plan.{pid}.q", f"has shape {q.shape}, expected (states, "
+                                               f"actions)")
+        return q.shape
+    q_shape = d.get("q_shape")
+    if not (isinstance(q_shape, list) and len(q_shape) == 2
+            and all(is_int(v) and v >= 0 for v in q_shape)):
+        raise bad(where, f"plans[{j}].q_shape", f"must be [states, actions], got {q_shape!r}")
+    entries = q_shape[0] * q_shape[1]
+    check_shape(where, f"plan.{pid}.q_na", numeric_array(where, arrays, f"plan.{pid}.q_na"),
+                 ((entries + 7) // 8,), f" (a bit per entry of the {tuple(q_shape)} Q-table)")
+    values = numeric_array(where, arrays, f"plan.{pid}.q_values")
+    if values.ndim != 2 or values.shape[0] != 8 or values.shape[1] > entries:
+        raise bad(where, f"plan.{pid}.q_values", f"has shape {values.shape}, expected (8, "
+                                                  f"at most {entries}) (the bytes of the "
+                                                  f"{tuple(q_shape)} Q-table's values)")
+    return tuple(q_shape)
 
 

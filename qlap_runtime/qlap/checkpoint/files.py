@@ -35,6 +35,17 @@ class CheckpointError(ValueError):
     """A checkpoint that cannot be read (missing, corrupt, wrong format or version)."""
 
 
+class InconsistentArray(ValueError):
+    """An array of an npz whose shape disagrees with the arrays it goes with (a grouped
+    array's ``ids``/``shapes``, a row index and its table), found while decoding it: ``field``
+    names the array. The loaders turn it into a :class:`CheckpointError` "FILE: inconsistent
+    checkpoint: FIELD WHY"."""
+
+    def __init__(self, field: str, why: str) -> None:
+        super().__init__(f"{field} {why}")
+        self.field, self.why = field, why
+
+
 @contextlib.contextmanager
 def atomic_file(path: Path, durable: bool = True) -> Iterator[BinaryIO]:
     """A binary file that becomes ``path`` when the block ends without an error: written as a
@@ -110,12 +121,24 @@ def pack_rows(arrays: dict[str, np.ndarray], keys: list[str]) -> dict[str, np.nd
 
 
 def unpack_rows(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Inverse of :func:`pack_rows`."""
+    """Inverse of :func:`pack_rows`; an index array that does not fit its table is an
+    :class:`InconsistentArray` naming it (its shape is checked; an index out of range is
+    found by the indexing itself, no scan)."""
     table = arrays.pop(ROWS, None)
+    if table is not None and table.ndim != 2:
+        raise InconsistentArray(ROWS, f"has shape {table.shape}, expected (rows, variables)")
     for k in [k for k in arrays if k.endswith("@rows")]:
+        index = arrays.pop(k)
         if table is None:
-            raise ValueError(f"{k} without the {ROWS} table")
-        arrays[k[:-5]] = table[arrays.pop(k)]
+            raise InconsistentArray(k, f"without the {ROWS} table")
+        if index.ndim != 1 or index.dtype.kind not in "iu":
+            raise InconsistentArray(k, f"has shape {index.shape} and type {index.dtype}, "
+                                       f"expected one dimension of integers")
+        try:
+            arrays[k[:-5]] = table[index]
+        except IndexError:
+            raise InconsistentArray(k, f"indexes rows up to {int(index.max())} of a {ROWS} "
+                                       f"table of {len(table)}") from None
     return arrays
 
 
@@ -150,19 +173,55 @@ def group_arrays(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.nda
 
 
 def ungroup_arrays(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Inverse of :func:`group_arrays` (for every prefix)."""
+    """Inverse of :func:`group_arrays` (for every prefix). The ``ids`` and ``shapes`` are
+    checked against each other and the values (:func:`_check_group`, small arrays only): a
+    mismatch is an :class:`InconsistentArray` naming the array."""
     for key in [k for k in arrays if ".*." in k and not k.endswith((".ids", ".shapes"))]:
         prefix, field = key.split(".*.", 1)
         data = arrays.pop(key)
+        for part in ("ids", "shapes"):
+            if f"{key}.{part}" not in arrays:
+                raise InconsistentArray(key, f"without its {key}.{part}")
         ids, shapes = arrays.pop(f"{key}.ids"), arrays.pop(f"{key}.shapes")
+        sizes = _check_group(key, data, ids, shapes)
         at = 0
-        for i, shape in zip(ids, shapes, strict=True):
-            n = int(np.prod(shape))
-            arrays[f"{prefix}.{int(i)}.{field}"] = data[at:at + n].reshape(tuple(shape))
+        for i, shape, n in zip(ids.tolist(), shapes.tolist(), sizes.tolist(), strict=True):
+            arrays[f"{prefix}.{i}.{field}"] = data[at:at + n].reshape(tuple(shape))
             at += n
-        if at != len(data):
-            raise ValueError(f"{key}: {len(data)} values for shapes totalling {at}")
+    for key in [k for k in arrays if ".*." in k]:
+        raise InconsistentArray(key, f"without its {key.rsplit('.', 1)[0]}")
     return arrays
+
+
+def _check_group(key: str, data: np.ndarray, ids: np.ndarray, shapes: np.ndarray
+                 ) -> np.ndarray:
+    """The number of values of each object of the grouped array ``key`` (the product of its
+    shape), once ``ids`` (one integer per object, increasing, as :func:`group_arrays` writes
+    them), ``shapes`` (a row of non-negative integers per object) and ``data`` (one dimension,
+    as many values as the shapes total) agree; else an :class:`InconsistentArray`."""
+    if data.ndim != 1:
+        raise InconsistentArray(key, f"has shape {data.shape}, expected one dimension")
+    if ids.ndim != 1 or ids.dtype.kind not in "iu":
+        raise InconsistentArray(f"{key}.ids", f"has shape {ids.shape} and type {ids.dtype}, "
+                                              f"expected one dimension of integers")
+    if shapes.ndim != 2 or shapes.dtype.kind not in "iu" or len(shapes) != len(ids):
+        raise InconsistentArray(f"{key}.shapes", f"has shape {shapes.shape} and type "
+                                                 f"{shapes.dtype}, expected ({len(ids)}, "
+                                                 f"dimensions) integers ({key}.ids has "
+                                                 f"{len(ids)})")
+    if len(ids) > 1 and not bool(np.all(ids[1:] > ids[:-1])):
+        raise InconsistentArray(f"{key}.ids", "are not increasing (group_arrays writes them "
+                                              "sorted): mixed up with another array's")
+    if len(ids) and int(ids[0]) < 0:
+        raise InconsistentArray(f"{key}.ids", f"holds a negative id {int(ids[0])}")
+    if shapes.size and int(shapes.min()) < 0:
+        raise InconsistentArray(f"{key}.shapes", "holds a negative length")
+    sizes = np.prod(shapes, axis=1, dtype=np.int64)
+    total = int(sizes.sum())
+    if total != len(data):
+        raise InconsistentArray(key, f"has shape {data.shape}, expected ({total},) (the total "
+                                     f"of {key}.shapes)")
+    return sizes
 
 
 XZ_ARRAYS = (ROWS, "plan.*.q_values")

@@ -8,6 +8,7 @@ contingency actor writes beside the executor's checkpoint (:func:`save_statistic
 from __future__ import annotations
 
 import json
+import math
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -19,9 +20,13 @@ from ..dbn import DBN
 from ..delta import Delta
 from ..learner import ModelLearner
 from ..params import Params
-from ..variables import Event, VariableTable
+from ..perception import EventIndex
+from ..quantity import QuantitySpace
+from ..variables import Event, Kind, VariableTable
+from .checks import bad, check_shape, is_int, numeric_array, one_line
 from .files import (
     CheckpointError,
+    InconsistentArray,
     group_arrays,
     not_a_checkpoint,
     pack_rows,
@@ -120,20 +125,25 @@ def read_checkpoint(directory: str | Path, name: str = "learner"
         raise CheckpointError(f"{jpath}: {FORMAT} version {meta.get('version')!r} is not "
                               f"supported (this build reads versions "
                               f"{', '.join(map(str, READABLE_VERSIONS))})")
-    arrays = _read_arrays(npath, lambda a: unpack_rows(ungroup_arrays(a)))
+    arrays = _read_arrays(npath, directory / name, lambda a: unpack_rows(ungroup_arrays(a)))
     return meta, arrays
 
 
-def _read_arrays(npath: Path, then: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]]
-                 = lambda a: a) -> dict[str, np.ndarray]:
+def _read_arrays(npath: Path, where: Path,
+                 then: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] = lambda a: a
+                 ) -> dict[str, np.ndarray]:
     """The arrays of a checkpoint's ``.npz`` (passed through ``then``); a missing or corrupt
-    file is a :class:`CheckpointError` naming it."""
+    file is a :class:`CheckpointError` naming it, a grouped or row-indexed array that does not
+    fit the arrays it goes with (:class:`~.files.InconsistentArray`) one naming ``where`` and
+    the array."""
     try:
         return then(read_npz(npath))
     except FileNotFoundError:
         raise CheckpointError(f"{npath}: no such checkpoint file") from None
+    except InconsistentArray as exc:
+        raise bad(where, exc.field, exc.why) from None
     except Exception as exc:  # zipfile/np errors on corrupt data
-        raise CheckpointError(f"{npath}: corrupt array file ({exc})") from None
+        raise CheckpointError(f"{npath}: corrupt array file ({one_line(exc)})") from None
 
 
 def save_statistics(learner: ModelLearner, directory: str | Path) -> Path:
@@ -149,14 +159,14 @@ def save_statistics(learner: ModelLearner, directory: str | Path) -> Path:
 
 
 def _merge_statistics(directory: Path, meta: dict[str, Any],
-                      arrays: dict[str, np.ndarray]) -> None:
+                      arrays: dict[str, np.ndarray]) -> bool:
     """Put ``stats.json``/``stats.npz`` (when present) into a learner checkpoint read from
-    ``directory``: they replace its pair and window statistics."""
+    ``directory``: they replace its pair and window statistics. True when they did."""
     jpath, npath = directory / f"{STATS_PART}.json", directory / f"{STATS_PART}.npz"
     try:
         stats = json.loads(jpath.read_text())
     except FileNotFoundError:
-        return
+        return False
     except (OSError, ValueError) as exc:
         raise CheckpointError(f"{jpath}: corrupt statistics ({exc})") from None
     if not isinstance(stats, dict) or stats.get("format") != STATS_FORMAT \
@@ -165,12 +175,13 @@ def _merge_statistics(directory: Path, meta: dict[str, Any],
     if stats.get("step") != meta.get("step"):
         raise CheckpointError(f"{jpath}: statistics of step {stats.get('step')!r}, the "
                               f"learner's step is {meta.get('step')!r}")
-    extra = _read_arrays(npath)
+    extra = _read_arrays(npath, directory / STATS_PART)
     for key in [k for k in arrays if k.startswith("pairs.")]:
         del arrays[key]
     arrays.update(extra)
     meta["pairs"], meta["window"] = stats.get("pairs"), stats.get("window")
     meta.pop("follower", None)
+    return True
 
 
 def statistics_missing(directory: str | Path) -> bool:
@@ -188,74 +199,171 @@ def load_learner(directory: str | Path, name: str = "learner") -> ModelLearner:
     """Rebuild a learner that continues exactly as the saved one would (with the ``stats``
     part of an actor placement's checkpoint put in, :data:`STATS_PART`)."""
     meta, arrays = read_checkpoint(directory, name)
-    if name == "learner":
-        _merge_statistics(resolve_checkpoint(directory), meta, arrays)
-    check_learner(meta, arrays, Path(directory) / name)
+    directory = resolve_checkpoint(directory)
+    where = directory / name
+    merged = name == "learner" and _merge_statistics(directory, meta, arrays)
+    check_learner(meta, arrays, where, pairs_where=directory / STATS_PART if merged else None)
+    part = ["perception"]                          # the part being restored, for the error
     try:
-        return restore_learner(meta, arrays)
+        return _restore_learner(meta, arrays, part)
     except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
-        raise CheckpointError(f"{Path(directory) / name}: inconsistent checkpoint "
-                              f"({type(exc).__name__}: {exc})") from None
-
-
-def _bad(where: Path, field: str, why: str) -> CheckpointError:
-    return CheckpointError(f"{where}: inconsistent checkpoint: {field} {why}")
-
-
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
+        raise CheckpointError(f"{where}: inconsistent checkpoint in {part[0]} "
+                              f"({type(exc).__name__}: {one_line(exc)})") from None
 
 
 def _check_event(where: Path, field: str, ev: Any, n: int) -> None:
-    if not (isinstance(ev, list | tuple) and len(ev) == 3 and all(map(_is_int, ev))):
-        raise _bad(where, field, f"is not an event [variable, value, direction]: {ev!r}")
+    if not (isinstance(ev, list | tuple) and len(ev) == 3 and all(map(is_int, ev))):
+        raise bad(where, field, f"is not an event [variable, value, direction]: {ev!r}")
     if not 0 <= ev[0] < n:
-        raise _bad(where, field, f"names variable {ev[0]}, not one of the {n} variables")
+        raise bad(where, field, f"names variable {ev[0]}, not one of the {n} variables")
 
 
-def check_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray], where: Path) -> None:
+def check_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray], where: Path,
+                  pairs_where: Path | None = None) -> None:
     """The semantic checks of a learner checkpoint (variables named by index exist, scalars
     in range, array shapes): a :class:`CheckpointError` naming the field, not an IndexError
-    later."""
+    or a broadcast error later. Every array the learner is restored from must be there, of
+    the shape the rest of the state implies: the number of variables, of events and
+    consequent candidates (from the quantity spaces), of stored activations, each DBN's
+    context cells and pending activations (shapes only: no scan of a large array).
+    ``pairs_where``: the file the ``pairs.*`` arrays come from, when not ``where`` (the
+    ``stats`` part, :data:`STATS_PART`)."""
     variables = meta.get("variables")
     if not (isinstance(variables, list) and all(isinstance(v, dict) for v in variables)):
-        raise _bad(where, "variables", f"must be a list of variable records, got "
+        raise bad(where, "variables", f"must be a list of variable records, got "
                                        f"{str(variables)[:60]!r}")
     try:
         n = len(variables)
         params = Params.from_dict(meta["params"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise _bad(where, "variables/params", f"unreadable ({type(exc).__name__}: {exc})"
+        raise bad(where, "variables/params", f"unreadable ({type(exc).__name__}: {exc})"
                    ) from None
     k = meta.get("k")
-    if not _is_int(k) or not 1 <= k <= params.event_history:
-        raise _bad(where, "k", f"must be an integer in 1..{params.event_history} "
+    if not is_int(k) or not 1 <= k <= params.event_history:
+        raise bad(where, "k", f"must be an integer in 1..{params.event_history} "
                                f"(params.event_history), got {k!r}")
     for field in ("step", "next_id"):
-        if not _is_int(meta.get(field)):
-            raise _bad(where, field, f"must be an integer, got {meta.get(field)!r}")
+        if not is_int(meta.get(field)):
+            raise bad(where, field, f"must be an integer, got {meta.get(field)!r}")
     shapes = {"perception.prev_x": (n,), "perception.prev_q": (n,)}
     for key, shape in shapes.items():
-        if key in arrays and arrays[key].shape != shape:
-            raise _bad(where, key, f"has shape {arrays[key].shape}, expected {shape}")
-    hx, hq = arrays.get("perception.hist_x"), arrays.get("perception.hist_q")
+        check_shape(where, key, numeric_array(where, arrays, key), shape)
+    hx = numeric_array(where, arrays, "perception.hist_x")
+    hq = numeric_array(where, arrays, "perception.hist_q")
     for key, a in (("perception.hist_x", hx), ("perception.hist_q", hq)):
-        if a is not None and (a.ndim != 2 or a.shape[1] != n):
-            raise _bad(where, key, f"has shape {a.shape}, expected (rows, {n})")
-    if hx is not None and hq is not None and hx.shape != hq.shape:
-        raise _bad(where, "perception.hist_q", f"has shape {hq.shape}, hist_x {hx.shape}")
+        if a.ndim != 2 or a.shape[1] != n:
+            raise bad(where, key, f"has shape {a.shape}, expected (rows, {n})")
+    if hx.shape != hq.shape:        # name the one whose rows are not the usual history's
+        key, a, other = ("perception.hist_x", hx, hq) if hq.shape[0] == params.event_history \
+            else ("perception.hist_q", hq, hx)
+        raise bad(where, key, f"has shape {a.shape}, expected {other.shape} (as "
+                               f"perception.hist_{'q' if key.endswith('x') else 'x'})")
+    per = meta.get("perception")
+    if not isinstance(per, dict):
+        raise bad(where, "perception", "is not an object")
+    rows = hx.shape[0]
+    for field, top in (("hist_len", rows), ("hist_head", rows - 1)):
+        v = per.get(field)
+        if not is_int(v) or not 0 <= v <= max(top, 0):
+            raise bad(where, f"perception.{field}", f"must be an integer in 0..{max(top, 0)} "
+                                                     f"(perception.hist_x has {rows} rows), "
+                                                     f"got {v!r}")
+    table, sizes = _value_counts(where, variables, per.get("spaces"))
+    _check_pairs(pairs_where or where, arrays, EventIndex(table, sizes))
     dbns = meta.get("dbns")
     if not isinstance(dbns, list):
-        raise _bad(where, "dbns", "is not a list")
+        raise bad(where, "dbns", "is not a list")
     for j, d in enumerate(dbns):
         if not isinstance(d, dict):
-            raise _bad(where, f"dbns[{j}]", "is not an object")
+            raise bad(where, f"dbns[{j}]", "is not an object")
         _check_event(where, f"dbns[{j}].antecedent", d.get("antecedent"), n)
         _check_event(where, f"dbns[{j}].consequent", d.get("consequent"), n)
         ctx = d.get("context")
-        if not isinstance(ctx, list | tuple) or not all(_is_int(c) and 0 <= c < n for c in ctx):
-            raise _bad(where, f"dbns[{j}].context", f"must list variables in 0..{n - 1}, got "
+        if not isinstance(ctx, list | tuple) or not all(is_int(c) and 0 <= c < n for c in ctx):
+            raise bad(where, f"dbns[{j}].context", f"must list variables in 0..{n - 1}, got "
                                                     f"{ctx!r}")
+    _check_dbn_arrays(where, dbns, arrays, sizes, params.stored_activations, n)
+
+
+def _value_counts(where: Path, variables: list[dict], spaces: Any
+                  ) -> tuple[VariableTable, list[int]]:
+    """The variable table and |Q(v)| of every variable (its values for a nominal one, else
+    its quantity space's 2n + 1), as the learner's event index counts them."""
+    n = len(variables)
+    if not isinstance(spaces, list) or len(spaces) != n:
+        got = len(spaces) if isinstance(spaces, list) else repr(spaces)[:40]
+        raise bad(where, "perception.spaces", f"must list the quantity spaces of the {n} "
+                                               f"variables, got {got}")
+    try:
+        table = VariableTable.from_json(variables)
+        qs = [QuantitySpace.from_json(sp) for sp in spaces]
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise bad(where, "variables/perception.spaces", f"unreadable ({type(exc).__name__}: "
+                                                         f"{one_line(exc)})") from None
+    return table, [len(v.values) if v.kind is Kind.NOMINAL else qs[v.index].size
+                   for v in table]
+
+
+def _check_pairs(where: Path, arrays: dict[str, np.ndarray], index: EventIndex) -> None:
+    """The pair statistics (§4.1.2): one row per event, one column per consequent candidate
+    of the event index the quantity spaces give; the open window's (step, event) lists."""
+    e, c = index.n_events, index.n_cons
+    why = f" ({e} events, {c} consequent candidates)"
+    for key, shape in (("occurrences", (e,)), ("soon_given", (e, c)), ("soon_steps", (c,)),
+                       ("last_cons", (c,))):
+        check_shape(where, f"pairs.{key}", numeric_array(where, arrays, f"pairs.{key}"), shape, why)
+    win_t = numeric_array(where, arrays, "pairs.win_t")
+    win_ids = numeric_array(where, arrays, "pairs.win_ids")
+    if win_t.ndim != 1:
+        raise bad(where, "pairs.win_t", f"has shape {win_t.shape}, expected (events,)")
+    check_shape(where, "pairs.win_ids", win_ids, win_t.shape, " (as pairs.win_t)")
+    # The open window holds the events of the last k steps: a few, checked by value.
+    if win_ids.size and not (0 <= int(win_ids.min()) and int(win_ids.max()) < e):
+        raise bad(where, "pairs.win_ids", f"names events outside 0..{e - 1}")
+
+
+def _check_dbn_arrays(where: Path, dbns: list[dict], arrays: dict[str, np.ndarray],
+                      sizes: list[int], cap: int, n: int) -> None:
+    """Each DBN's arrays: its activation ring (``Params.stored_activations`` rows of the
+    ``n`` variables), its CPT (one cell per value combination of its context variables,
+    §4.2.1) and the states of its pending activations (one row each)."""
+    ids: set[int] = set()
+    for j, d in enumerate(dbns):
+        i = d.get("id")
+        if not is_int(i) or i < 0 or i in ids:
+            raise bad(where, f"dbns[{j}].id", f"must be a new non-negative integer, got {i!r}")
+        ids.add(i)
+        for field, top in (("act_n", cap), ("act_head", cap - 1)):
+            v = d.get(field)
+            if not is_int(v) or not 0 <= v <= top:
+                raise bad(where, f"dbns[{j}].{field}", f"must be an integer in 0..{top} "
+                                                        f"(params.stored_activations), got "
+                                                        f"{v!r}")
+        pending = d.get("pending")
+        if not isinstance(pending, list) or not all(
+                isinstance(e, list) and len(e) == 2 for e in pending):
+            raise bad(where, f"dbns[{j}].pending", "must be a list of [step, resolved]")
+        cells = math.prod(sizes[v] for v in d["context"])
+        shapes = [("act_x", (cap, n)), ("act_ok", (cap,)), ("cpt_s", (cells,)),
+                  ("cpt_f", (cells,))]
+        if pending:
+            shapes.append(("pending_x", (len(pending), n)))
+        for field, shape in shapes:
+            key = f"dbn.{i}.{field}"
+            a = numeric_array(where, arrays, key)
+            if a.shape != shape:                    # the message only for a mismatch
+                why = {"act_x": "params.stored_activations × variables",
+                       "act_ok": "params.stored_activations",
+                       "pending_x": f"DBN {i}: {len(pending)} pending activations × "
+                                    f"variables"}.get(field, f"DBN {i}: context "
+                                                             f"{list(d['context'])}, {cells} "
+                                                             f"cells")
+                raise bad(where, key, f"has shape {a.shape}, expected {shape} ({why})")
+    for key in arrays:
+        parts = key.split(".", 2)
+        if parts[0] == "dbn" and len(parts) == 3 and not (parts[1].isdigit()
+                                                          and int(parts[1]) in ids):
+            raise bad(where, key, "belongs to no DBN of the checkpoint")
 
 
 def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> None:
@@ -263,29 +371,29 @@ def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> Non
     motor = meta.get("motor")
     names = {v.name for v in learner.table if getattr(v.kind, "value", v.kind) == "motor"}
     if not isinstance(motor, dict):
-        raise _bad(where, "motor", f"must map motor names to numbers, got {motor!r}")
+        raise bad(where, "motor", f"must map motor names to numbers, got {motor!r}")
     for k, v in motor.items():
         if k not in names:
-            raise _bad(where, "motor", f"names {k!r}, not a motor ({', '.join(sorted(names))})")
+            raise bad(where, "motor", f"names {k!r}, not a motor ({', '.join(sorted(names))})")
         if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
-            raise _bad(where, f"motor.{k}", f"must be a finite number, got {v!r}")
+            raise bad(where, f"motor.{k}", f"must be a finite number, got {v!r}")
     plans = meta.get("plans")
     if not isinstance(plans, list):
-        raise _bad(where, "plans", "is not a list")
+        raise bad(where, "plans", "is not a list")
     for j, d in enumerate(plans):
         dbn_id = d.get("dbn_id") if isinstance(d, dict) else None
         if dbn_id not in learner.dbns:
-            raise _bad(where, f"plans[{j}].dbn_id", f"names no DBN of the learner: {dbn_id!r}")
+            raise bad(where, f"plans[{j}].dbn_id", f"names no DBN of the learner: {dbn_id!r}")
     world = meta.get("world")
     if world is not None and (not isinstance(world, str) or not world.strip()):
-        raise _bad(where, "world", f"must be a world spec such as 'core', got {world!r}")
+        raise bad(where, "world", f"must be a world spec such as 'core', got {world!r}")
     for field in ("step_count", "next_plan_id", "hold_until"):
-        if not _is_int(meta.get(field)):
-            raise _bad(where, field, f"must be an integer, got {meta.get(field)!r}")
+        if not is_int(meta.get(field)):
+            raise bad(where, field, f"must be an integer, got {meta.get(field)!r}")
     # The agent's last step is its learner's, or the one before it (a plan request's agent
     # has observed step t), or later (evaluation steps do not reach the learner).
     if meta["step_count"] < learner.step - 1:
-        raise _bad(where, "step_count", f"is {meta['step_count']}, before its learner's step "
+        raise bad(where, "step_count", f"is {meta['step_count']}, before its learner's step "
                                         f"{learner.step}")
     n = len(learner.table)
 
@@ -295,36 +403,49 @@ def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> Non
 
     goal = meta.get("goal")
     if goal is not None and not (isinstance(goal, list) and len(goal) == 2
-                                 and all(_is_int(g) for g in goal) and 0 <= goal[0] < n
+                                 and all(is_int(g) for g in goal) and 0 <= goal[0] < n
                                  and 0 <= goal[1] < n_values(goal[0])):
-        raise _bad(where, "goal", f"must be null or [variable index, value index], got {goal!r}")
+        raise bad(where, "goal", f"must be null or [variable index, value index], got {goal!r}")
     selfs = meta.get("self_vars")
-    if not (isinstance(selfs, list) and all(_is_int(v) and 0 <= v < n for v in selfs)):
-        raise _bad(where, "self_vars", f"must be a list of variable indices, got {selfs!r}")
+    if not (isinstance(selfs, list) and all(is_int(v) and 0 <= v < n for v in selfs)):
+        raise bad(where, "self_vars", f"must be a list of variable indices, got {selfs!r}")
     for field, allowed in (("mode", ("babble", "command", "practice", "hold", "goal", "idle")),
                            ("goal_idle", ("babble", "zero"))):
         if meta.get(field) not in allowed:
-            raise _bad(where, field, f"must be one of {', '.join(allowed)}, got "
+            raise bad(where, field, f"must be one of {', '.join(allowed)}, got "
                                      f"{meta.get(field)!r}")
     if not isinstance(meta.get("learning"), bool):
-        raise _bad(where, "learning", f"must be true or false, got {meta.get('learning')!r}")
+        raise bad(where, "learning", f"must be true or false, got {meta.get('learning')!r}")
 
 
 def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> ModelLearner:
+    """The learner of a checkpoint's (meta, arrays), unchecked (:func:`check_learner`)."""
+    return _restore_learner(meta, arrays, [""])
+
+
+def _restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray],
+                     part: list[str]) -> ModelLearner:
+    """:func:`restore_learner`, naming in ``part[0]`` the part being restored (for the error
+    of :func:`load_learner`)."""
+    part[0] = "variables, params or perception"
     params = Params.from_dict(meta["params"])
     learner = ModelLearner(VariableTable.from_json(meta["variables"]), params)
     per = learner.perception
     per.load_state(meta["perception"], {k[len("perception."):]: v for k, v in arrays.items()
                                         if k.startswith("perception.")})
+    part[0] = "step, k, k_learned, next_id or delta_version"
     learner.step, learner.k, learner.k_learned = int(meta["step"]), int(meta["k"]), \
         bool(meta["k_learned"])
     learner.next_id, learner.version = int(meta["next_id"]), int(meta["delta_version"])
+    part[0] = "pairs"
     learner.pairs.reset(per.events)
     learner.pairs.load_state(meta["pairs"], {k[6:]: v for k, v in arrays.items()
                                              if k.startswith("pairs.")})
+    part[0] = "window"
     learner.window.load_state(meta["window"])
     cap, n = params.stored_activations, len(learner.table)
-    for d in meta["dbns"]:
+    for pos, d in enumerate(meta["dbns"]):
+        part[0] = f"dbns[{pos}]"
         i = int(d["id"])
         dbn = DBN(i, d["kind"], Event(*d["antecedent"]), Event(*d["consequent"]),
                   tuple(d["context"]), int(d["created"]), n, cap)
@@ -338,7 +459,9 @@ def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Mode
         dbn.pending = [[int(t), px[j].astype(float), bool(res)]
                        for j, (t, res) in enumerate(d["pending"])]
         learner.dbns[i] = dbn
+    part[0] = "expiry or mag_active"
     learner.load_state(meta)                        # expiry, mag_active; the indexes
+    part[0] = "pending_deltas, applied, splits or reliable_actions"
     learner.pending_deltas = deque(
         Delta.from_json(d).mark_applied() if d.get("applied") else Delta.from_json(d)
         for d in meta["pending_deltas"])
