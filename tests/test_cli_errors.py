@@ -445,6 +445,11 @@ def test_a_bad_router_config_file_is_one_line_with_its_place(capsys, tmp_path, t
     assert ".rs:" not in line and "-->" not in line
 
 
+def test_a_router_that_cannot_listen_names_the_endpoint(capsys):
+    code, _, err = qlap(capsys, "router", "--listen", "tcp/999.1.1.1:7447")
+    assert_one_line(code, err, "qlap router: cannot listen on tcp/999.1.1.1:7447: ")
+
+
 def test_a_stopped_run_names_the_checkpoint_it_keeps(tmp_path):
     """What `qlap run` adds to the line of a run stopped by a failed write: its newest whole
     checkpoint (one with agent.json) and the command that goes on from it — with --placement

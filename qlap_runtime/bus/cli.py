@@ -141,6 +141,10 @@ def _describe(exc: BaseException, args: argparse.Namespace) -> str:
     text = one_line(exc)
     if isinstance(exc, zenoh.ZError) and getattr(args, "connect", None):
         return connect_failure(args.connect, text, getattr(args, "credentials", None))
+    if isinstance(exc, zenoh.ZError) and args.command == "router":
+        where = ", ".join(args.listen) if args.listen else (
+            f"the config {args.config}" if args.config else "tcp/127.0.0.1:7447")
+        return f"cannot listen on {where}: {text}"
     return text
 
 
