@@ -450,6 +450,15 @@ def test_a_router_that_cannot_listen_names_the_endpoint(capsys):
     assert_one_line(code, err, "qlap router: cannot listen on tcp/999.1.1.1:7447: ")
 
 
+def test_a_router_config_whose_users_file_is_missing_names_it(capsys, tmp_path):
+    path = tmp_path / "router.json5"
+    path.write_text('{ mode: "router", listen: { endpoints: ["tcp/127.0.0.1:0"] }, transport: '
+                    '{ auth: { usrpwd: { dictionary_file: "no-such-users.txt" } } } }')
+    code, _, err = qlap(capsys, "router", "--config", str(path))
+    assert_one_line(code, err, f"qlap router: --config {path}: ",
+                    "dictionary_file 'no-such-users.txt'")
+
+
 def test_a_stopped_run_names_the_checkpoint_it_keeps(tmp_path):
     """What `qlap run` adds to the line of a run stopped by a failed write: its newest whole
     checkpoint (one with agent.json) and the command that goes on from it — with --placement

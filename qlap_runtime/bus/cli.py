@@ -14,6 +14,7 @@ Each command runs until done or until SIGINT/SIGTERM, then closes its session an
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import sys
@@ -142,10 +143,22 @@ def _describe(exc: BaseException, args: argparse.Namespace) -> str:
     if isinstance(exc, zenoh.ZError) and getattr(args, "connect", None):
         return connect_failure(args.connect, text, getattr(args, "credentials", None))
     if isinstance(exc, zenoh.ZError) and args.command == "router":
-        where = ", ".join(args.listen) if args.listen else (
-            f"the config {args.config}" if args.config else "tcp/127.0.0.1:7447")
-        return f"cannot listen on {where}: {text}"
+        if args.config is None:
+            return f"cannot listen on {', '.join(args.listen or ['tcp/127.0.0.1:7447'])}: {text}"
+        return f"--config {args.config}: {text}{_dictionary_hint(args.config, text)}"
     return text
+
+
+def _dictionary_hint(config: Path, text: str) -> str:
+    """Which users file a router config's failure is about (Zenoh does not name it)."""
+    if "dictionary file" not in text:
+        return ""
+    try:
+        name = json.loads(config_from_file(config).get_json(
+            "transport/auth/usrpwd/dictionary_file"))
+    except Exception:                   # the hint is a courtesy: the error stands without it
+        return ""
+    return f" (its usrpwd dictionary_file {name!r}, from {Path.cwd()})"
 
 
 def connect_failure(endpoints: list[str], reason: str, credentials: Path | None) -> str:
