@@ -13,6 +13,8 @@ from .spec import ABLATIONS, ExperimentError
 __all__ = ["DEFAULT_OUT", "add_experiment_command", "main_experiment"]
 
 from ..argtypes import positive_int
+from ..errors import CliError
+from .address import check_reachable, parse_ray_address, ray_address
 
 DEFAULT_OUT = Path("runs/experiments")
 
@@ -49,10 +51,14 @@ def add_experiment_command(sub: Any) -> None:
     p.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="local: a pool of spawned worker processes; ray: Ray tasks, a local "
                         "Ray with --jobs CPUs or the cluster at --address (default: local)")
-    p.add_argument("--address", default=None, metavar="HOST:PORT",
-                   help="with --engine ray: join the Ray cluster at this address (its nodes "
-                        "need qlap-runtime installed and --out on shared storage) (default: "
-                        "start a local Ray)")
+    p.add_argument("--address", type=ray_address, default=None, metavar="HOST:PORT",
+                   help="with --engine ray: join the Ray cluster at this address, HOST:PORT "
+                        "of its head (ray start --head; port 6379 by default), "
+                        "ray://HOST:PORT (Ray Client, needs ray[client]), auto (the cluster "
+                        "started on this machine with ray start) or local (a local Ray); its "
+                        "nodes need qlap-runtime installed and --out on shared storage; an "
+                        "unreachable cluster is an error within seconds (default: start a "
+                        "local Ray)")
     p.add_argument("--jobs", type=positive_int, default=None, metavar="N",
                    help="jobs at a time (default: every core of this machine; with --address, "
                         "every CPU of the cluster)")
@@ -105,9 +111,15 @@ def main_experiment(args: argparse.Namespace, argv: list[str] | None = None) -> 
                         ablations=args.ablations)
         if args.address and args.engine != "ray":
             raise ExperimentError("--address goes with --engine ray")
+        address = parse_ray_address(args.address) if args.address else None
+        if address is not None:             # a cluster that does not answer: an error in
+            address = check_reachable(address)  # seconds, before anything is printed
     except ExperimentError as exc:
         print(f"qlap experiment: {exc}", file=sys.stderr)
         return 2
+    except CliError as exc:                 # RayUnreachable: exit status 1
+        print(f"qlap experiment: {exc}", file=sys.stderr)
+        return exc.code
     from ..runtime.outputs import OutputError, check_out
     from .engine import make_backend, run_sweep
     from .report import write_report
@@ -126,10 +138,13 @@ def main_experiment(args: argparse.Namespace, argv: list[str] | None = None) -> 
           f"{len(sweep.runs)} agent runs, {len(sweep.evals)} evaluations under {args.out}",
           flush=True)
     try:
-        backend = make_backend(args.engine, args.jobs, args.address)
+        backend = make_backend(args.engine, args.jobs, address)
     except ExperimentError as exc:
         print(f"qlap experiment: {exc}", file=sys.stderr)
         return 2
+    except CliError as exc:                 # RayUnreachable: exit status 1
+        print(f"qlap experiment: {exc}", file=sys.stderr)
+        return exc.code
     try:
         result = run_sweep(sweep, backend, echo=lambda s: print(s, flush=True),
                            live=not args.no_live)

@@ -16,6 +16,7 @@ Jobs are the JSON-in, JSON-out functions of :mod:`.jobs`.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import multiprocessing
@@ -29,7 +30,9 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from ..analysis.curve import RANDOM_RUN, CurveRow, read_rows, write_rows
+from ..errors import one_line
 from . import jobs
+from .address import RayUnreachable, check_reachable, parse_ray_address
 from .jobs import file_lock
 from .spec import ExperimentError
 from .sweep import EvalSpec, Sweep, run_done
@@ -100,6 +103,11 @@ class RayBackend:
     name = "ray"
 
     def __init__(self, jobs: int | None = None, address: str | None = None) -> None:
+        """``address`` is checked first (:mod:`.address`): a malformed one raises
+        :class:`ExperimentError`, a cluster whose port does not answer within a few seconds
+        :class:`RayUnreachable` — instead of Ray's ``ValueError`` or its endless retries."""
+        if address is not None:
+            address = parse_ray_address(address)
         try:
             import ray
         except ImportError:
@@ -108,12 +116,27 @@ class RayBackend:
         self.ray = ray
         self.owned = not ray.is_initialized()
         if self.owned:
+            if address and address.startswith("ray://") and \
+                    importlib.util.find_spec("grpc") is None:
+                raise ExperimentError(f"--address {address}: the Ray Client needs "
+                                      "pip install 'ray[client]'")
+            if address:
+                address = check_reachable(address)
             kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                       "configure_logging": False}
-            if address:
-                ray.init(address=address, **kwargs)
-            else:
-                ray.init(num_cpus=max(1, jobs or os.cpu_count() or 1), **kwargs)
+            try:
+                if address:
+                    ray.init(address=address, **kwargs)
+                else:
+                    ray.init(num_cpus=max(1, jobs or os.cpu_count() or 1), **kwargs)
+            except (ConnectionError, ValueError, RuntimeError) as exc:
+                if ray.is_initialized():
+                    ray.shutdown()
+                where = f"join the Ray cluster at {address}" if address else "start Ray"
+                env = "" if address else os.environ.get("RAY_ADDRESS", "")
+                hint = (f" (RAY_ADDRESS={env} is set: unset it, or give it as --address)"
+                        if env else "")
+                raise RayUnreachable(f"cannot {where}: {one_line(exc)}{hint}") from None
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.slots = max(1, min(jobs, cpus) if jobs and address else cpus)
         self.remote = {k: ray.remote(num_cpus=1, max_retries=0)(f)
