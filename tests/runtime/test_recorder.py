@@ -17,6 +17,14 @@ from qlap_runtime.bus.schema import Control, DeltaMsg, IACChoice, Motor, QState,
 from qlap_runtime.qlap.delta import Delta, SetK
 
 
+def _publish(session, run_id: str, msgs: list[tuple[str, object]]) -> dict[str, Publisher]:
+    """Put ``msgs`` on ``session``, one publisher per topic (returned, to be closed)."""
+    pubs = {topic: Publisher(session, run_id, topic) for topic in {t for t, _ in msgs}}
+    for topic, msg in msgs:
+        pubs[topic].put(msg)
+    return pubs
+
+
 def _published(n: int) -> list[tuple[str, object]]:
     out: list[tuple[str, object]] = []
     for t in range(n):
@@ -36,9 +44,7 @@ async def test_recorder_in_process_writes_what_was_published(embedded, run_id, t
     summary_box: list = []
     async with trio.open_nursery() as nursery:
         await nursery.start(_record_task, embedded, run_id, out, stop, summary_box)
-        pubs = {topic: Publisher(embedded, run_id, topic) for topic in {t for t, _ in msgs}}
-        for topic, msg in msgs:
-            pubs[topic].put(msg)
+        pubs = _publish(embedded, run_id, msgs)
         embedded.put(keys.key(run_id, "sense"), b"garbage")  # counted, not recorded
         embedded.put(keys.key("other-run", "sense"), b'{"step":0,"values":{},"version":1}')
         await trio.sleep(0.2)
@@ -156,9 +162,7 @@ async def test_a_full_disk_ends_the_recording_not_the_caller(embedded, run_id, t
     summary_box: list = []
     async with trio.open_nursery() as nursery:
         await nursery.start(_record_task, embedded, run_id, out, stop, summary_box)
-        pubs = {topic: Publisher(embedded, run_id, topic) for topic in {t for t, _ in msgs}}
-        for topic, msg in msgs:
-            pubs[topic].put(msg)
+        pubs = _publish(embedded, run_id, msgs)
         await trio.sleep(0.2)
         stop.set()
     for p in pubs.values():

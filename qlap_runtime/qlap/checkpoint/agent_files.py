@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .checks import bad, check_shape, is_int, numeric_array, one_line
+from .checks import bad, check_ring, check_shape, is_int, numeric_array, one_line
 from .files import (
     CheckpointError,
     InconsistentArray,
@@ -262,12 +262,7 @@ def check_plan_arrays(meta: dict[str, Any], arrays: dict[str, np.ndarray], learn
         if not isinstance(ctx, list) or not all(is_int(v) and 0 <= v < n for v in ctx):
             raise bad(where, f"plans[{j}].context_o", f"must list variables in 0..{n - 1}, "
                                                        f"got {ctx!r}")
-        for field, top in (("call_n", cap), ("call_head", cap - 1)):
-            v = d.get(field)
-            if not is_int(v) or not 0 <= v <= top:
-                raise bad(where, f"plans[{j}].{field}", f"must be an integer in 0..{top} "
-                                                         f"(params.stored_activations), got "
-                                                         f"{v!r}")
+        check_ring(where, f"plans[{j}]", d, ("call_n", "call_head"), cap)
         cells = math.prod(sizes[v] for v in ctx)
         ctx_why = f" (plan {pid}: C_o {ctx}, {cells} cells)"
         for field, shape, why in (

@@ -41,3 +41,13 @@ def check_shape(where: Path, key: str, a: np.ndarray, shape: tuple[int, ...],
     """``a`` (the array ``key``) has ``shape``; ``why`` says where the shape comes from."""
     if a.shape != shape:
         raise bad(where, key, f"has shape {a.shape}, expected {shape}{why}")
+
+
+def check_ring(where: Path, field: str, record: dict, names: tuple[str, str], cap: int) -> None:
+    """A ring of ``cap`` stored rows (``Params.stored_activations``): its count and head
+    (``names``, e.g. ``act_n``, ``act_head``) of ``record`` (``field``) in range."""
+    for name, top in ((names[0], cap), (names[1], cap - 1)):
+        v = record.get(name)
+        if not is_int(v) or not 0 <= v <= top:
+            raise bad(where, f"{field}.{name}", f"must be an integer in 0..{top} "
+                                                f"(params.stored_activations), got {v!r}")

@@ -23,7 +23,7 @@ from ..params import Params
 from ..perception import EventIndex
 from ..quantity import QuantitySpace
 from ..variables import Event, Kind, VariableTable
-from .checks import bad, check_shape, is_int, numeric_array, one_line
+from .checks import bad, check_ring, check_shape, is_int, numeric_array, one_line
 from .files import (
     CheckpointError,
     InconsistentArray,
@@ -333,12 +333,7 @@ def _check_dbn_arrays(where: Path, dbns: list[dict], arrays: dict[str, np.ndarra
         if not is_int(i) or i < 0 or i in ids:
             raise bad(where, f"dbns[{j}].id", f"must be a new non-negative integer, got {i!r}")
         ids.add(i)
-        for field, top in (("act_n", cap), ("act_head", cap - 1)):
-            v = d.get(field)
-            if not is_int(v) or not 0 <= v <= top:
-                raise bad(where, f"dbns[{j}].{field}", f"must be an integer in 0..{top} "
-                                                        f"(params.stored_activations), got "
-                                                        f"{v!r}")
+        check_ring(where, f"dbns[{j}]", d, ("act_n", "act_head"), cap)
         pending = d.get("pending")
         if not isinstance(pending, list) or not all(
                 isinstance(e, list) and len(e) == 2 for e in pending):
