@@ -82,6 +82,11 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None) -> Path:
     curve_path = run_dir / "curve.csv"
     curves = _curve_groups(curve_path) if curve_path.is_file() else []
     if not lines and not curves:
+        unread = _nonblank_lines(run_dir / METRICS_FILE)
+        if unread:
+            raise AnalysisError(f"{run_dir / METRICS_FILE}: none of its {unread} lines is a "
+                                "metrics record (a JSON object with an integer step), and no "
+                                "curve.csv to draw")
         raise AnalysisError(f"{run_dir}: no {METRICS_FILE} lines and no curve.csv to draw "
                             "(runs written before the metrics log have none)")
     fig = Figure(figsize=(12.0, 8.0))
@@ -157,7 +162,19 @@ def plot_run(run_dir: str | Path, out: str | Path | None = None) -> Path:
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    return save_png(fig, Path(out) if out is not None else run_dir / PLOT_FILE, dpi=100)
+    target = Path(out) if out is not None else run_dir / PLOT_FILE
+    try:
+        return save_png(fig, target, dpi=100)
+    except OSError as exc:                      # a full disk, a read-only run directory
+        raise AnalysisError(f"{target}: cannot write ({exc.strerror or exc})") from None
+
+
+def _nonblank_lines(path: Path) -> int:
+    """How many non-blank lines ``path`` has (0 if it cannot be read)."""
+    try:
+        return sum(1 for raw in path.read_bytes().split(b"\n") if raw.strip())
+    except OSError:
+        return 0
 
 
 def plot_run_if_possible(run_dir: str | Path) -> Path | None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from qlap_runtime.analysis import plot
 from qlap_runtime.analysis.curve import RANDOM_RUN, CurveRow, write_rows
 
@@ -35,3 +37,18 @@ def test_a_curve_of_one_run_keeps_its_plain_label(tmp_path):
     [(label, rows, base)] = plot._curve_groups(tmp_path / "curve.csv")
     assert label == "pickup (core, 10 trials, seed 0)" and [r.step for r in rows] == [10000]
     assert base is not None and base.mean_reward == 0.0
+
+
+def test_a_metrics_log_of_no_records_and_an_unwritable_picture_are_named(tmp_path):
+    from qlap_runtime.analysis import AnalysisError
+    from qlap_runtime.analysis.plot import plot_run
+
+    (tmp_path / "metrics.jsonl").write_text("garbage\n[1, 2]\n\n{\"step\": \"x\"}\n")
+    with pytest.raises(AnalysisError, match=r"metrics.jsonl: none of its 3 lines is a metrics "
+                                            r"record"):
+        plot_run(tmp_path)
+    (tmp_path / "metrics.jsonl").write_text('{"step": 10, "dbns": 3}\n')
+    target = tmp_path / "adir.png"
+    target.mkdir()                                  # a directory where the picture would go
+    with pytest.raises(AnalysisError, match=rf"{target}: cannot write \("):
+        plot_run(tmp_path, target)
