@@ -65,3 +65,14 @@ def goal_arg(text: str):  # -> worlds.base.Goal
     if not sep or not var.strip() or not value.strip():
         raise argparse.ArgumentTypeError(f"expected VAR=VALUE (e.g. T_L.dot=+), got {text!r}")
     return Goal(var.strip(), value.strip())
+
+
+class Once(argparse.Action):
+    """An option that may be given once: a second value is an error, not a silent
+    replacement of the first."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        if getattr(namespace, self.dest, self.default) is not self.default:
+            raise argparse.ArgumentError(self, "given twice: give it once")
+        setattr(namespace, self.dest, values)

@@ -459,6 +459,13 @@ def test_a_router_config_whose_users_file_is_missing_names_it(capsys, tmp_path):
                     "dictionary_file 'no-such-users.txt'")
 
 
+def test_a_goal_given_twice_is_refused_not_replaced():
+    r = qlap_process("eval", "--policy", "random", "--task", "move_block",
+                     "--goal", "T_L.dot=+", "--goal", "T_R.dot=-")
+    assert_one_line(r.returncode, r.stderr, "argument --goal: given twice")
+    assert r.returncode == 2
+
+
 def test_a_stopped_run_names_the_checkpoint_it_keeps(tmp_path):
     """What `qlap run` adds to the line of a run stopped by a failed write: its newest whole
     checkpoint (one with agent.json) and the command that goes on from it — with --placement

@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 from typing import NoReturn
 
-from ..argtypes import count, goal_arg, path_arg, positive_float, positive_int
+from ..argtypes import Once, count, goal_arg, path_arg, positive_float, positive_int
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -166,7 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="seed of the trials' set-ups (the same set-ups for every checkpoint)")
     ev.add_argument("--policy", choices=("qlap", "random"), default="qlap",
                     help="qlap (the checkpoint's agent) or random (the random-motor baseline)")
-    ev.add_argument("--goal", type=goal_arg, default=None, metavar="VAR=VALUE",
+    ev.add_argument("--goal", type=goal_arg, default=None, metavar="VAR=VALUE", action=Once,
                     help="the agent pursues this goal in every trial instead of the task's "
                          "(e.g. T_L.dot=+ in hit_floor: how often pushing the block left "
                          "knocks it off); the task still judges each trial")
