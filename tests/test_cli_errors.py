@@ -142,6 +142,15 @@ def test_echo_and_record_to_an_unreachable_endpoint(tmp_path, closed_port, comma
     assert "ExceptionGroup" not in r.stderr
 
 
+def test_tui_with_a_malformed_endpoint_or_run_id_exits_2_before_connecting(closed_port):
+    r = qlap_process("tui", "--connect", "nope")
+    assert_one_line(r.returncode, r.stderr, "qlap tui", "'nope' is not an endpoint")
+    assert r.returncode == 2
+    r = qlap_process("tui", "--connect", f"tcp/127.0.0.1:{closed_port}", "--run", "a/b")
+    assert_one_line(r.returncode, r.stderr, "qlap tui: --run a/b: run id 'a/b'")
+    assert r.returncode == 2 and "cannot connect" not in r.stderr
+
+
 def test_tui_to_an_unreachable_endpoint(closed_port):
     endpoint = f"tcp/127.0.0.1:{closed_port}"
     r = qlap_process("tui", "--connect", endpoint)

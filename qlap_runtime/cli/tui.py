@@ -14,14 +14,24 @@ def cmd_tui(args: argparse.Namespace) -> int:
 
     from tui import QlapApp
 
+    from ..bus import keys
     from ..bus.auth import UI_USER
     from ..bus.cli import connect_failure, credentials_for
-    from ..bus.config import client_config
+    from ..bus.config import BusConfigError, client_config
 
+    if args.run is not None:                    # wrong values before any connection
+        try:
+            keys.validate_run_id(args.run)
+        except ValueError as exc:
+            raise CliError(f"--run {args.run}: {exc}") from None
     user, password = credentials_for(args.credentials, UI_USER)
     auth = {"user": user, "password": password} if user else {}
     try:
-        zenoh.open(client_config(args.connect, **auth)).close()
+        config = client_config(args.connect, **auth)
+    except BusConfigError as exc:               # a malformed endpoint: exit 2, as echo's
+        raise CliError(str(exc)) from None
+    try:
+        zenoh.open(config).close()
     except zenoh.ZError as exc:
         raise CliError(connect_failure(args.connect, one_line(exc), args.credentials),
                        code=1) from None
