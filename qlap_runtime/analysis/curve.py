@@ -330,6 +330,10 @@ def select_every(checkpoints: Sequence[Checkpoint], every: int | None,
     for c in checkpoints:
         last[c.run] = max(last.get(c.run, c.step), c.step)
     extra = set(at)
+    steps = sorted({c.step for c in checkpoints})
+    if missing := sorted(extra - set(steps)):
+        raise AnalysisError(f"--at {' '.join(map(str, missing))}: no run has a checkpoint of "
+                            f"that step (the steps: {', '.join(f'{s:,}' for s in steps)})")
     return [c for c in checkpoints
             if c.step % every == 0 or c.step in extra or c.step == last[c.run]]
 

@@ -204,6 +204,12 @@ def test_select_every_by_hand(tmp_path):
         range(10_000, 250_001, 10_000))                  # the reference's schedule: all
     with pytest.raises(AnalysisError, match="positive"):
         select_every(cks, 0)
+    assert [(c.run, c.step) for c in select_every(cks, 100_000, at=(20_000, 230_000))] == [
+        ("a", 20_000), ("a", 100_000), ("a", 200_000), ("a", 230_000), ("a", 250_000),
+        ("b", 20_000), ("b", 25_000)]
+    with pytest.raises(AnalysisError, match=r"--at 12345 230001: no run has a checkpoint of "
+                                            r"that step \(the steps: 10,000, 20,000, 25,000"):
+        select_every(cks, 100_000, at=(20_000, 12_345, 230_001))
 
 
 def test_curve_every(runs, tmp_path):
