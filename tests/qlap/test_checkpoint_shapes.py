@@ -232,3 +232,23 @@ def test_show_and_resume_refuse_in_one_line(good, tmp_path, case):
         assert len(lines) == 1 and "inconsistent checkpoint" in lines[0] \
             and name[0] in lines[0], (args, r.stderr)
         assert "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize(("key", "edit", "fragment"), [
+    ("perception.prev_q", lambda a: a.__setitem__(0, 10**6), "perception.prev_q holds 1000000"),
+    ("perception.prev_q", lambda a: a.__setitem__(0, -7), "perception.prev_q holds -7"),
+    ("perception.hist_q", lambda a: a.__setitem__((0, 1), 30000), "perception.hist_q holds 30000"),
+    ("pairs.occurrences", lambda a: a.__setitem__(0, -3), "pairs.occurrences holds a negative"),
+])
+def test_values_out_of_their_range_are_named(good, tmp_path, key, edit, fragment):
+    # Small arrays only: the qualitative values the perception remembers must be values of
+    # their variable (or −1), the pair counts not negative.
+    from qlap_runtime.qlap.checkpoint.files import read_npz, write_npz
+
+    bad_ckpt = tmp_path / "bad"
+    shutil.copytree(good, bad_ckpt)
+    arrays = read_npz(bad_ckpt / "learner.npz")
+    edit(arrays[key])
+    write_npz(bad_ckpt / "learner.npz", arrays)
+    with pytest.raises(CheckpointError, match=f"inconsistent checkpoint: {re.escape(fragment)}"):
+        load_learner(bad_ckpt)

@@ -242,9 +242,9 @@ def check_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray], where: Pa
     if not is_int(k) or not 1 <= k <= params.event_history:
         raise bad(where, "k", f"must be an integer in 1..{params.event_history} "
                                f"(params.event_history), got {k!r}")
-    for field in ("step", "next_id"):
-        if not is_int(meta.get(field)):
-            raise bad(where, field, f"must be an integer, got {meta.get(field)!r}")
+    for field, least in (("step", -1), ("next_id", 0)):
+        if not is_int(meta.get(field)) or meta[field] < least:
+            raise bad(where, field, f"must be an integer ≥ {least}, got {meta.get(field)!r}")
     shapes = {"perception.prev_x": (n,), "perception.prev_q": (n,)}
     for key, shape in shapes.items():
         check_shape(where, key, numeric_array(where, arrays, key), shape)
@@ -269,6 +269,7 @@ def check_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray], where: Pa
                                                      f"(perception.hist_x has {rows} rows), "
                                                      f"got {v!r}")
     table, sizes = _value_counts(where, variables, per.get("spaces"))
+    _check_values(where, arrays, sizes)
     _check_pairs(pairs_where or where, arrays, EventIndex(table, sizes))
     dbns = meta.get("dbns")
     if not isinstance(dbns, list):
@@ -304,6 +305,20 @@ def _value_counts(where: Path, variables: list[dict], spaces: Any
                    for v in table]
 
 
+def _check_values(where: Path, arrays: dict[str, np.ndarray], sizes: list[int]) -> None:
+    """The qualitative values the perception remembers (the last step's and its history's,
+    small arrays): each −1 (unknown) or a value of its variable's quantity space."""
+    top = np.asarray(sizes)
+    for key in ("perception.prev_q", "perception.hist_q"):
+        q = arrays[key]
+        wrong = (q < -1) | (q >= top)
+        if wrong.any():
+            at = np.argwhere(wrong)[0]
+            var = int(at[-1])
+            raise bad(where, key, f"holds {int(q[tuple(at)])} for variable {var}, whose values are "
+                                  f"0..{sizes[var] - 1} (or −1: unknown)")
+
+
 def _check_pairs(where: Path, arrays: dict[str, np.ndarray], index: EventIndex) -> None:
     """The pair statistics (§4.1.2): one row per event, one column per consequent candidate
     of the event index the quantity spaces give; the open window's (step, event) lists."""
@@ -311,7 +326,10 @@ def _check_pairs(where: Path, arrays: dict[str, np.ndarray], index: EventIndex) 
     why = f" ({e} events, {c} consequent candidates)"
     for key, shape in (("occurrences", (e,)), ("soon_given", (e, c)), ("soon_steps", (c,)),
                        ("last_cons", (c,))):
-        check_shape(where, f"pairs.{key}", numeric_array(where, arrays, f"pairs.{key}"), shape, why)
+        a = numeric_array(where, arrays, f"pairs.{key}")
+        check_shape(where, f"pairs.{key}", a, shape, why)
+        if key != "last_cons" and a.size and float(a.min()) < 0:
+            raise bad(where, f"pairs.{key}", f"holds a negative count ({a.min().item()})")
     win_t = numeric_array(where, arrays, "pairs.win_t")
     win_ids = numeric_array(where, arrays, "pairs.win_ids")
     if win_t.ndim != 1:
