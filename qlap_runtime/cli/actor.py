@@ -49,17 +49,10 @@ def cmd_actor(args: argparse.Namespace) -> int:
     if args.name == "executor" and args.out is not None:
         # The executor writes the run's outputs (metrics, knowledge, checkpoints): never
         # into another run's directory, whose files it would truncate or replace.
-        from ..runtime.outputs import OutputError, check_out
-        from .run_dir import run_files_in
+        from .run_dir import out_refused
 
-        if held := run_files_in(args.out):
-            print(f"qlap actor: --out {args.out} already holds a run ({', '.join(held)}); "
-                  "give a new directory", file=sys.stderr)
-            return 2
-        try:
-            check_out(args.out)
-        except OutputError as exc:
-            print(f"qlap actor: {exc}", file=sys.stderr)
+        if (problem := out_refused(args.out)) is not None:
+            print(f"qlap actor: {problem}", file=sys.stderr)
             return 2
     ctx = RunContext(args.run, args.world, args.steps, args.seed, params, out=args.out)
     print(f"qlap actor {args.name}: run {args.run}, connecting to {', '.join(args.connect)}; "

@@ -71,23 +71,30 @@ def run_files_in(out: Path) -> list[str]:
     return [name for name in RUN_FILES if (out / name).exists()] if out.is_dir() else []
 
 
+def out_refused(out: Path) -> str | None:
+    """Why ``out`` cannot be a new run's directory (it holds a run, whose checkpoints and
+    metrics would mix with the new one's; or it is not writable, or has no room), else None
+    with ``out`` created (:func:`~qlap_runtime.runtime.outputs.check_out`)."""
+    from ..runtime.outputs import OutputError, check_out
+
+    if held := run_files_in(out):
+        return (f"--out {out} already holds a run ({', '.join(held)}); a second run there "
+                "would mix the two: give a new directory")
+    try:
+        check_out(out)
+    except OutputError as exc:
+        return str(exc)
+    return None
+
+
 def prepare_out(args: argparse.Namespace) -> Path | None:
     """The run directory (``--out`` or the default), created and checked writable with a
     probe file and for room for a checkpoint before the run starts
     (:func:`~qlap_runtime.runtime.outputs.check_out`), and refused if it already holds a run
     (its checkpoints and metrics would mix with this one's); None after a one-line error."""
-    from ..runtime.outputs import OutputError, check_out
-
     out = args.out if args.out is not None else default_run_dir(args.world, args.seed)
-    held = run_files_in(out)
-    if held:
-        print(f"qlap run: --out {out} already holds a run ({', '.join(held)}); a second run "
-              "there would mix the two: give a new directory", file=sys.stderr)
-        return None
-    try:
-        check_out(out)
-    except OutputError as exc:
-        print(f"qlap run: {exc}", file=sys.stderr)
+    if (problem := out_refused(out)) is not None:
+        print(f"qlap run: {problem}", file=sys.stderr)
         return None
     args.run_dir = out
     say(f"run directory: {out}")

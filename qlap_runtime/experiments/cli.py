@@ -14,7 +14,7 @@ __all__ = ["DEFAULT_OUT", "add_experiment_command", "main_experiment"]
 
 from ..argtypes import positive_int
 from ..errors import CliError
-from .address import check_reachable, parse_ray_address, ray_address
+from .address import ray_address
 
 DEFAULT_OUT = Path("runs/experiments")
 
@@ -111,23 +111,26 @@ def main_experiment(args: argparse.Namespace, argv: list[str] | None = None) -> 
                         ablations=args.ablations)
         if args.address and args.engine != "ray":
             raise ExperimentError("--address goes with --engine ray")
-        address = parse_ray_address(args.address) if args.address else None
-        if address is not None:             # a cluster that does not answer: an error in
-            address = check_reachable(address)  # seconds, before anything is printed
+    except ExperimentError as exc:
+        print(f"qlap experiment: {exc}", file=sys.stderr)
+        return 2
+    from ..runtime.outputs import OutputError, check_out
+    from .engine import make_backend, run_sweep
+    from .report import write_report
+    from .sweep import plan
+
+    try:                                    # a cluster that does not answer: an error in
+        backend = make_backend(args.engine, args.jobs, args.address)   # seconds, first
     except ExperimentError as exc:
         print(f"qlap experiment: {exc}", file=sys.stderr)
         return 2
     except CliError as exc:                 # RayUnreachable: exit status 1
         print(f"qlap experiment: {exc}", file=sys.stderr)
         return exc.code
-    from ..runtime.outputs import OutputError, check_out
-    from .engine import make_backend, run_sweep
-    from .report import write_report
-    from .sweep import plan
-
     try:
         check_out(args.out)                 # before any run: writable, room for checkpoints
     except OutputError as exc:
+        backend.close()
         print(f"qlap experiment: {exc}", file=sys.stderr)
         return 2
     sweep = plan(exp, args.out)
@@ -137,14 +140,6 @@ def main_experiment(args: argparse.Namespace, argv: list[str] | None = None) -> 
           f"{exp.steps:,} steps, {len(exp.tasks)} task(s), {exp.trials} trials a checkpoint: "
           f"{len(sweep.runs)} agent runs, {len(sweep.evals)} evaluations under {args.out}",
           flush=True)
-    try:
-        backend = make_backend(args.engine, args.jobs, address)
-    except ExperimentError as exc:
-        print(f"qlap experiment: {exc}", file=sys.stderr)
-        return 2
-    except CliError as exc:                 # RayUnreachable: exit status 1
-        print(f"qlap experiment: {exc}", file=sys.stderr)
-        return exc.code
     try:
         result = run_sweep(sweep, backend, echo=lambda s: print(s, flush=True),
                            live=not args.no_live)

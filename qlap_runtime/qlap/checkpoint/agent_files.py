@@ -12,7 +12,16 @@ from typing import Any
 
 import numpy as np
 
-from .checks import bad, check_ring, check_shape, is_int, numeric_array, one_line
+from .checks import (
+    bad,
+    check_owned,
+    check_ring,
+    check_shape,
+    is_int,
+    new_id,
+    numeric_array,
+    one_line,
+)
 from .files import (
     CheckpointError,
     InconsistentArray,
@@ -253,11 +262,7 @@ def check_plan_arrays(meta: dict[str, Any], arrays: dict[str, np.ndarray], learn
     sizes = learner.perception.events.sizes
     ids: set[int] = set()
     for j, d in enumerate(meta["plans"]):
-        pid = d.get("id")
-        if not is_int(pid) or pid < 0 or pid in ids:
-            raise bad(where, f"plans[{j}].id", f"must be a new non-negative integer, got "
-                                                f"{pid!r}")
-        ids.add(pid)
+        pid = new_id(where, f"plans[{j}].id", d.get("id"), ids)
         ctx = d.get("context_o")
         if not isinstance(ctx, list) or not all(is_int(v) and 0 <= v < n for v in ctx):
             raise bad(where, f"plans[{j}].context_o", f"must list variables in 0..{n - 1}, "
@@ -276,11 +281,7 @@ def check_plan_arrays(meta: dict[str, Any], arrays: dict[str, np.ndarray], learn
         traces = numeric_array(where, arrays, key)
         if traces.size and q_shape is not None:
             check_shape(where, key, traces, q_shape, " (the Q-table's)")
-    for key in arrays:
-        parts = key.split(".", 2)
-        if parts[0] == "plan" and len(parts) == 3 and not (parts[1].isdigit()
-                                                           and int(parts[1]) in ids):
-            raise bad(where, key, "belongs to no plan of the checkpoint")
+    check_owned(where, arrays, "plan", ids, "plan")
 
 
 def _stored_q_shape(where: Path, j: int, d: dict[str, Any], arrays: dict[str, np.ndarray]

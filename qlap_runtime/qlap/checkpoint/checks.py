@@ -51,3 +51,22 @@ def check_ring(where: Path, field: str, record: dict, names: tuple[str, str], ca
         if not is_int(v) or not 0 <= v <= top:
             raise bad(where, f"{field}.{name}", f"must be an integer in 0..{top} "
                                                 f"(params.stored_activations), got {v!r}")
+
+
+def new_id(where: Path, field: str, value: Any, ids: set[int]) -> int:
+    """``value``, a non-negative integer not in ``ids`` (added to them): the id of a DBN or a
+    plan of the checkpoint."""
+    if not is_int(value) or value < 0 or value in ids:
+        raise bad(where, field, f"must be a new non-negative integer, got {value!r}")
+    ids.add(value)
+    return value
+
+
+def check_owned(where: Path, arrays: dict[str, np.ndarray], prefix: str, ids: set[int],
+                owner: str) -> None:
+    """Every ``<prefix>.<id>.<field>`` array belongs to an ``owner`` of ``ids``."""
+    for key in arrays:
+        parts = key.split(".", 2)
+        if parts[0] == prefix and len(parts) == 3 and not (parts[1].isdigit()
+                                                           and int(parts[1]) in ids):
+            raise bad(where, key, f"belongs to no {owner} of the checkpoint")

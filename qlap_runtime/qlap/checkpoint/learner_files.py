@@ -23,7 +23,16 @@ from ..params import Params
 from ..perception import EventIndex
 from ..quantity import QuantitySpace
 from ..variables import Event, Kind, VariableTable
-from .checks import bad, check_ring, check_shape, is_int, numeric_array, one_line
+from .checks import (
+    bad,
+    check_owned,
+    check_ring,
+    check_shape,
+    is_int,
+    new_id,
+    numeric_array,
+    one_line,
+)
 from .files import (
     CheckpointError,
     InconsistentArray,
@@ -203,11 +212,10 @@ def load_learner(directory: str | Path, name: str = "learner") -> ModelLearner:
     where = directory / name
     merged = name == "learner" and _merge_statistics(directory, meta, arrays)
     check_learner(meta, arrays, where, pairs_where=directory / STATS_PART if merged else None)
-    part = ["perception"]                          # the part being restored, for the error
     try:
-        return _restore_learner(meta, arrays, part)
+        return restore_learner(meta, arrays)
     except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
-        raise CheckpointError(f"{where}: inconsistent checkpoint in {part[0]} "
+        raise CheckpointError(f"{where}: inconsistent checkpoint "
                               f"({type(exc).__name__}: {one_line(exc)})") from None
 
 
@@ -347,10 +355,7 @@ def _check_dbn_arrays(where: Path, dbns: list[dict], arrays: dict[str, np.ndarra
     §4.2.1) and the states of its pending activations (one row each)."""
     ids: set[int] = set()
     for j, d in enumerate(dbns):
-        i = d.get("id")
-        if not is_int(i) or i < 0 or i in ids:
-            raise bad(where, f"dbns[{j}].id", f"must be a new non-negative integer, got {i!r}")
-        ids.add(i)
+        i = new_id(where, f"dbns[{j}].id", d.get("id"), ids)
         check_ring(where, f"dbns[{j}]", d, ("act_n", "act_head"), cap)
         pending = d.get("pending")
         if not isinstance(pending, list) or not all(
@@ -372,11 +377,7 @@ def _check_dbn_arrays(where: Path, dbns: list[dict], arrays: dict[str, np.ndarra
                                                              f"{list(d['context'])}, {cells} "
                                                              f"cells")
                 raise bad(where, key, f"has shape {a.shape}, expected {shape} ({why})")
-    for key in arrays:
-        parts = key.split(".", 2)
-        if parts[0] == "dbn" and len(parts) == 3 and not (parts[1].isdigit()
-                                                          and int(parts[1]) in ids):
-            raise bad(where, key, "belongs to no DBN of the checkpoint")
+    check_owned(where, arrays, "dbn", ids, "DBN")
 
 
 def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> None:
@@ -433,32 +434,20 @@ def check_agent(meta: dict[str, Any], learner: ModelLearner, where: Path) -> Non
 
 def restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> ModelLearner:
     """The learner of a checkpoint's (meta, arrays), unchecked (:func:`check_learner`)."""
-    return _restore_learner(meta, arrays, [""])
-
-
-def _restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray],
-                     part: list[str]) -> ModelLearner:
-    """:func:`restore_learner`, naming in ``part[0]`` the part being restored (for the error
-    of :func:`load_learner`)."""
-    part[0] = "variables, params or perception"
     params = Params.from_dict(meta["params"])
     learner = ModelLearner(VariableTable.from_json(meta["variables"]), params)
     per = learner.perception
     per.load_state(meta["perception"], {k[len("perception."):]: v for k, v in arrays.items()
                                         if k.startswith("perception.")})
-    part[0] = "step, k, k_learned, next_id or delta_version"
     learner.step, learner.k, learner.k_learned = int(meta["step"]), int(meta["k"]), \
         bool(meta["k_learned"])
     learner.next_id, learner.version = int(meta["next_id"]), int(meta["delta_version"])
-    part[0] = "pairs"
     learner.pairs.reset(per.events)
     learner.pairs.load_state(meta["pairs"], {k[6:]: v for k, v in arrays.items()
                                              if k.startswith("pairs.")})
-    part[0] = "window"
     learner.window.load_state(meta["window"])
     cap, n = params.stored_activations, len(learner.table)
-    for pos, d in enumerate(meta["dbns"]):
-        part[0] = f"dbns[{pos}]"
+    for d in meta["dbns"]:
         i = int(d["id"])
         dbn = DBN(i, d["kind"], Event(*d["antecedent"]), Event(*d["consequent"]),
                   tuple(d["context"]), int(d["created"]), n, cap)
@@ -472,9 +461,7 @@ def _restore_learner(meta: dict[str, Any], arrays: dict[str, np.ndarray],
         dbn.pending = [[int(t), px[j].astype(float), bool(res)]
                        for j, (t, res) in enumerate(d["pending"])]
         learner.dbns[i] = dbn
-    part[0] = "expiry or mag_active"
     learner.load_state(meta)                        # expiry, mag_active; the indexes
-    part[0] = "pending_deltas, applied, splits or reliable_actions"
     learner.pending_deltas = deque(
         Delta.from_json(d).mark_applied() if d.get("applied") else Delta.from_json(d)
         for d in meta["pending_deltas"])
